@@ -2,7 +2,6 @@
 
 #include <cassert>
 #include <cstdio>
-#include <vector>
 
 namespace kinevis::hal {
 namespace {
@@ -151,10 +150,11 @@ std::optional<CanFrame> ParseCanFrame(std::string_view text, std::string* error)
 int CanFrameWireBits(const CanFrame& frame) {
   // The bits from start of frame to the end of the data field, as transmitted before stuffing
   // (ISO 11898-1): 0 is dominant.
-  std::vector<bool> bits;
-  bits.reserve(160);
-  auto put = [&bits](uint32_t value, int count) {
-    for (int i = count - 1; i >= 0; --i) bits.push_back(((value >> i) & 1u) != 0);
+  // At most 1 + 32 + 6 + 4 + 64 + 15 = 122 bits before stuffing; no allocation.
+  std::array<bool, 128> bits{};
+  size_t n_bits = 0;
+  auto put = [&bits, &n_bits](uint32_t value, int count) {
+    for (int i = count - 1; i >= 0; --i) bits[n_bits++] = ((value >> i) & 1u) != 0;
   };
   put(0, 1);  // SOF
   if (frame.extended) {
@@ -175,7 +175,8 @@ int CanFrameWireBits(const CanFrame& frame) {
   for (int i = 0; i < data_bytes; ++i) put(frame.data[i], 8);
   // CRC-15, polynomial 0x4599, over SOF..data.
   uint32_t crc = 0;
-  for (bool b : bits) {
+  for (size_t i = 0; i < n_bits; ++i) {
+    const bool b = bits[i];
     bool crc_next = b ^ (((crc >> 14) & 1u) != 0);
     crc = (crc << 1) & 0x7FFF;
     if (crc_next) crc ^= 0x4599;
@@ -186,7 +187,7 @@ int CanFrameWireBits(const CanFrame& frame) {
   int stuff = 0;
   int run = 0;
   bool last = false;
-  for (size_t i = 0; i < bits.size(); ++i) {
+  for (size_t i = 0; i < n_bits; ++i) {
     if (i > 0 && bits[i] == last) {
       ++run;
     } else {
@@ -200,7 +201,7 @@ int CanFrameWireBits(const CanFrame& frame) {
     }
   }
   // CRC delimiter, ACK slot, ACK delimiter, 7-bit end of frame, 3-bit interframe space.
-  return static_cast<int>(bits.size()) + stuff + 1 + 1 + 1 + 7 + 3;
+  return static_cast<int>(n_bits) + stuff + 1 + 1 + 1 + 7 + 3;
 }
 
 bool CanFilter::Matches(const CanFrame& frame) const {

@@ -102,6 +102,7 @@ class VirtualCanNetwork : public std::enable_shared_from_this<VirtualCanNetwork>
   // All below require mutex_ held.
   void PumpLocked(Duration now);
   void DeliverLocked(const CanFrame& frame, VirtualCanBus* sender, Duration at);
+  void AbandonPendingLocked(VirtualCanBus* node);
   void Detach(VirtualCanBus* node);
 
   const std::string name_;
