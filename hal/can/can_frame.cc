@@ -1,5 +1,6 @@
 #include "hal/can/can_frame.h"
 
+#include <algorithm>
 #include <cassert>
 #include <cstdio>
 

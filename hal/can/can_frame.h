@@ -6,6 +6,7 @@
 #include <array>
 #include <chrono>
 #include <cstdint>
+#include <initializer_list>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -21,8 +22,9 @@ struct CanFrame {
   bool rtr = false;         // remote transmission request (no data; dlc is the requested length)
   uint8_t dlc = 0;          // data length code, 0..8
   std::array<uint8_t, 8> data{};
-  // Reception time on the backend's clock (SocketCAN: kernel time; virtual: the bus clock; slcan:
-  // host time of arrival, or the adapter's ms timestamp when enabled). Zero for frames to send.
+  // Reception time since the epoch of the backend's clock: the SteadyClock for SocketCAN (the
+  // kernel's stamp converted to it) and slcan (host time of arrival); the network's Clock for
+  // the virtual bus (the SteadyClock unless a SimulatedClock was given). Zero for frames to send.
   std::chrono::nanoseconds timestamp{0};
 
   // Frames with the given payload; the helpers assert that id and payload fit.
