@@ -32,7 +32,8 @@
 
 namespace kinevis::hal {
 
-// The longest line the protocol has: 'T', 8 id digits, dlc, 16 data digits, 4 timestamp digits, '\r'.
+// The longest line the protocol has: 'T', 8 id digits, dlc, 16 data digits, 4 timestamp digits,
+// '\r'.
 inline constexpr size_t kSlcanMaxLineSize = 31;
 // Largest adapter timestamp: 59999 ms. The counter wraps to 0 every 60 s.
 inline constexpr uint16_t kSlcanMaxTimestampMs = 0xEA5F;
@@ -48,6 +49,14 @@ enum SlcanStatusFlag : uint8_t {
   kSlcanArbitrationLost = 1u << 6,  // a transmission lost arbitration
   kSlcanBusError = 1u << 7,         // a protocol error on the bus (stuff, form, CRC, bit)
 };
+
+// Milliseconds from adapter timestamp `earlier` to `later` (both 0..59999), across the wrap at
+// 60 s: (later - earlier + 60000) % 60000. Right when the two frames are less than 60 s apart;
+// the host arrival times tell whether they are.
+inline uint16_t SlcanTimestampDeltaMs(uint16_t earlier, uint16_t later) {
+  constexpr int kPeriod = kSlcanMaxTimestampMs + 1;
+  return static_cast<uint16_t>((later - earlier + kPeriod) % kPeriod);
+}
 
 // Bit rate in bit/s of the Lawicel code S0..S8; -1 for a code out of range. The inverse is
 // SlcanBitrateCode() in hal/common/backend_spec.h.
@@ -77,9 +86,9 @@ struct SlcanCommand {
     kTimestamps,    // Z0 / Z1: timestamps_on
   };
   Kind kind = Kind::kClose;
-  int bitrate_code = 0;       // kSetBitrate: 0..8
+  int bitrate_code = 0;        // kSetBitrate: 0..8
   bool timestamps_on = false;  // kTimestamps
-  CanFrame frame;             // kTransmit
+  CanFrame frame;              // kTransmit
 
   static SlcanCommand Simple(Kind kind);  // O, L, C, V, N, F
   static SlcanCommand SetBitrate(int bitrate_code);
@@ -110,12 +119,15 @@ struct SlcanEvent {
     kInvalid,       // an undecodable line: text = the line, escaped and truncated (see below)
   };
   Kind kind = Kind::kOk;
-  CanFrame frame;               // kFrame; frame.timestamp is left zero (the host stamps it)
-  bool has_timestamp = false;    // kFrame: the adapter appended a ms timestamp
-  uint16_t timestamp_ms = 0;    // kFrame: 0..59999 when has_timestamp
-  bool extended_ack = false;     // kTxAck
-  uint8_t status = 0;           // kStatus
-  std::string text;             // kVersion, kSerialNumber, kInvalid
+  CanFrame frame;              // kFrame; frame.timestamp is left zero (the host stamps it)
+  bool has_timestamp = false;  // kFrame: the adapter appended a ms timestamp
+  uint16_t timestamp_ms = 0;   // kFrame: 0..59999 when has_timestamp
+  bool extended_ack = false;   // kTxAck
+  uint8_t status = 0;          // kStatus
+  // kVersion, kSerialNumber: the 4 characters. kInvalid: the line as printable text (bytes
+  // outside 0x20..0x7E and '\\' written as \xNN), its first kMaxLineBytes bytes only, with
+  // "..." appended when it was longer.
+  std::string text;
 };
 
 const char* ToString(SlcanEvent::Kind kind);
@@ -160,7 +172,7 @@ class SlcanDecoder {
 
   std::array<char, kMaxLineBytes> line_{};
   size_t size_ = 0;
-  bool skipping_ = false;       // inside an overlong line, waiting for its terminator
+  bool skipping_ = false;  // inside an overlong line, waiting for its terminator
   bool after_terminator_ = true;
   uint64_t decode_errors_ = 0;
   uint64_t discarded_bytes_ = 0;

@@ -291,7 +291,9 @@ std::error_code VirtualCanBus::Send(const CanFrame& frame) {
 std::error_code VirtualCanBus::Receive(CanFrame* frame, std::chrono::microseconds timeout) {
   VirtualCanNetwork& net = *network_;
   const bool wall_clock = net.clock_ == &SteadyClock::Instance();
-  const auto wall_deadline = std::chrono::steady_clock::now() + timeout;
+  // Clamped: now() + microseconds::max() would overflow.
+  const auto wall_deadline = std::chrono::steady_clock::now() +
+                             std::min(timeout, std::chrono::microseconds(std::chrono::hours(24)));
   std::unique_lock<std::mutex> lock(net.mutex_);
   while (true) {
     const Duration now = net.clock_->Now();

@@ -10,6 +10,7 @@
 #include <sys/ioctl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 
 #include "hal/common/error.h"
@@ -19,6 +20,11 @@ namespace {
 
 using std::chrono::microseconds;
 
+// A deadline of now() + microseconds::max() would overflow; a day is "forever" for a serial read.
+microseconds ClampTimeout(microseconds timeout) {
+  return std::min(timeout, microseconds(std::chrono::hours(24)));
+}
+
 int PollTimeoutMs(microseconds timeout) {
   if (timeout <= microseconds::zero()) return 0;
   // Round up so that a 500 us timeout still waits.
@@ -27,9 +33,16 @@ int PollTimeoutMs(microseconds timeout) {
 
 class TermiosSerialPort final : public SerialPort {
  public:
-  TermiosSerialPort(int fd, SerialSettings settings, std::string name, bool own)
-      : fd_(fd), settings_(std::move(settings)), name_(std::move(name)), own_(own) {}
+  TermiosSerialPort(int fd, SerialSettings settings, std::string name, bool own, bool exclusive)
+      : fd_(fd),
+        settings_(std::move(settings)),
+        name_(std::move(name)),
+        own_(own),
+        exclusive_(exclusive) {}
   ~TermiosSerialPort() override {
+    // TIOCEXCL outlives this descriptor while anyone else holds the tty open (a PtyPair always
+    // does): without TIOCNXCL the next open by a non-root user fails with EBUSY.
+    if (exclusive_ && fd_ >= 0) ::ioctl(fd_, TIOCNXCL);
     if (own_ && fd_ >= 0) ::close(fd_);
   }
 
@@ -40,33 +53,42 @@ class TermiosSerialPort final : public SerialPort {
                        size_t* n_read) override {
     *n_read = 0;
     if (size == 0) return {};
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    const auto deadline = std::chrono::steady_clock::now() + ClampTimeout(timeout);
+    // Set when poll() reported a hang-up or an error: read once more (bytes received before it
+    // are still buffered), then report it.
+    std::error_code pending;
     while (true) {
       ssize_t n = ::read(fd_, buffer, size);
       if (n > 0) {
         *n_read = static_cast<size_t>(n);
         return {};
       }
-      if (n == 0) return Errc::kClosed;  // end of file: the other side of a pty closed
-      if (errno == EINTR) continue;
-      if (errno == EIO) return Errc::kClosed;  // pty master with no slave open, unplugged USB
-      if (errno != EAGAIN) return Errc::kIo;
+      if (n < 0) {
+        if (errno == EINTR) continue;
+        if (errno == EIO) return Errc::kClosed;  // pty whose other side closed, unplugged USB
+        if (errno != EAGAIN) return Errc::kIo;
+      }
+      // n == 0 is not end of file here: a raw-mode tty (VMIN = VTIME = 0) returns 0 when it has
+      // no data, before it looks at O_NONBLOCK, and a hung-up tty returns 0 for ever. poll()
+      // tells the two apart.
+      if (pending) return pending;
       auto left = std::chrono::duration_cast<microseconds>(deadline -
                                                            std::chrono::steady_clock::now());
       if (left <= microseconds::zero()) return Errc::kTimeout;
       pollfd p{fd_, POLLIN, 0};
       int r = ::poll(&p, 1, PollTimeoutMs(left));
       if (r < 0 && errno != EINTR) return Errc::kIo;
-      if (r > 0 && (p.revents & (POLLERR | POLLNVAL)) != 0) return Errc::kIo;
-      // POLLHUP with no data: let read() report it (EIO or 0) on the next pass.
-      if (r > 0 && (p.revents & POLLHUP) != 0 && (p.revents & POLLIN) == 0) {
-        return Errc::kClosed;
+      if (r > 0 && (p.revents & POLLNVAL) != 0) return Errc::kIo;
+      if (r > 0 && (p.revents & POLLHUP) != 0) {
+        pending = Errc::kClosed;
+      } else if (r > 0 && (p.revents & POLLERR) != 0) {
+        pending = Errc::kIo;
       }
     }
   }
 
   std::error_code WriteAll(const uint8_t* data, size_t size, microseconds timeout) override {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    const auto deadline = std::chrono::steady_clock::now() + ClampTimeout(timeout);
     size_t done = 0;
     while (done < size) {
       ssize_t n = ::write(fd_, data + done, size - done);
@@ -104,6 +126,7 @@ class TermiosSerialPort final : public SerialPort {
   SerialSettings settings_;
   std::string name_;
   bool own_;
+  bool exclusive_;  // this port set TIOCEXCL and must clear it
 };
 
 void Configure(int fd, const SerialSettings& s, const std::string& name) {
@@ -170,19 +193,24 @@ std::unique_ptr<SerialPort> OpenSerialPort(const SerialSettings& settings,
     throw HalError(name, "open " + settings.device, ErrnoText(err) + hint,
                    std::error_code(err, std::generic_category()));
   }
-  if (::ioctl(fd, TIOCEXCL) != 0 && errno != ENOTTY) {
+  bool exclusive = true;
+  if (::ioctl(fd, TIOCEXCL) != 0) {
     int err = errno;
-    ::close(fd);
-    throw HalError(name, "claim exclusive access (TIOCEXCL)", ErrnoText(err),
-                   std::error_code(err, std::generic_category()));
+    if (err != ENOTTY) {
+      ::close(fd);
+      throw HalError(name, "claim exclusive access (TIOCEXCL)", ErrnoText(err),
+                     std::error_code(err, std::generic_category()));
+    }
+    exclusive = false;
   }
   try {
     Configure(fd, settings, name);
   } catch (...) {
+    if (exclusive) ::ioctl(fd, TIOCNXCL);
     ::close(fd);
     throw;
   }
-  return std::make_unique<TermiosSerialPort>(fd, settings, name, /*own=*/true);
+  return std::make_unique<TermiosSerialPort>(fd, settings, name, /*own=*/true, exclusive);
 }
 
 std::unique_ptr<SerialPort> AdoptSerialDescriptor(int fd, const SerialSettings& settings,
@@ -191,7 +219,7 @@ std::unique_ptr<SerialPort> AdoptSerialDescriptor(int fd, const SerialSettings& 
   if (flags < 0 || ::fcntl(fd, F_SETFL, flags | O_NONBLOCK) != 0) {
     throw HalError(name, "set O_NONBLOCK on descriptor " + std::to_string(fd), ErrnoText(errno));
   }
-  return std::make_unique<TermiosSerialPort>(fd, settings, name, own);
+  return std::make_unique<TermiosSerialPort>(fd, settings, name, own, /*exclusive=*/false);
 }
 
 }  // namespace kinevis::hal
