@@ -4,6 +4,7 @@
 
 #include <csignal>
 #include <iostream>
+#include <thread>
 
 #include "hal/common/error.h"
 
@@ -41,6 +42,17 @@ int RunGuarded(const std::string& command, const std::function<int()>& body) {
     std::cerr << "kinevis " << command << ": " << e.what() << "\n";
     return kExitJobFailed;
   }
+}
+
+int ServeUntilStopped(const std::string& backend, const std::function<bool()>& poll,
+                      std::chrono::milliseconds period) {
+  std::cout << backend << std::endl;  // endl: the first line must reach a pipe at once
+  while (!StopRequested()) {
+    if (poll && !poll()) return kExitJobFailed;
+    std::this_thread::sleep_for(period);
+  }
+  spdlog::info("{}: stopped by signal", backend);
+  return kExitOk;
 }
 
 bool SetLogLevel(const std::string& level) {

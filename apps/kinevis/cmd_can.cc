@@ -38,8 +38,8 @@ std::chrono::nanoseconds WallTimeOffset() {
 
 struct DumpOptions {
   std::string backend;
-  int count = 0;            // 0 = no limit
-  double duration_s = 0;    // 0 = no limit
+  int count = 0;          // 0 = no limit
+  double duration_s = 0;  // 0 = no limit
   std::vector<std::string> filters;
   std::string log_path;
 };

@@ -79,11 +79,12 @@ void VirtualCanPart(Checks* checks) {
     }
   }
   const auto stats = net->statistics();
-  std::printf("  %d cycles of SYNC + 6 replies: %llu frames, %llu bits, bus load %.1f %%, "
-              "last reply %.1f us after SYNC\n",
-              kCycles, static_cast<unsigned long long>(stats.frames),
-              static_cast<unsigned long long>(stats.bits), 100.0 * stats.load(),
-              Micros(worst_latency).count());
+  std::printf(
+      "  %d cycles of SYNC + 6 replies: %llu frames, %llu bits, bus load %.1f %%, "
+      "last reply %.1f us after SYNC\n",
+      kCycles, static_cast<unsigned long long>(stats.frames),
+      static_cast<unsigned long long>(stats.bits), 100.0 * stats.load(),
+      Micros(worst_latency).count());
   checks->Expect(replies == 6 * kCycles, "every reply arrived (" + std::to_string(replies) + ")");
   checks->Expect(ordered, "replies arrived in identifier order (arbitration)");
   checks->Expect(stats.load() > 0.5 && stats.load() < 1.0, "bus load between 50 % and 100 %");
@@ -113,11 +114,11 @@ void SlcanPart(Checks* checks) {
     node->Send(hal::CanFrame::Standard(0x581, {0x4B, 0x41, 0x60, 0x00, b, 0x02}));
     if (!host->Receive(&f, 2s) && f.id == 0x581 && f.data[4] == b) ++to_host;
   }
-  const double round_trip_us =
-      Micros(std::chrono::steady_clock::now() - t0).count() / kFrames;
-  std::printf("  %d request/response pairs, mean round trip %.0f us (host -> pty -> adapter -> "
-              "bus -> node -> bus -> adapter -> pty -> host)\n",
-              kFrames, round_trip_us);
+  const double round_trip_us = Micros(std::chrono::steady_clock::now() - t0).count() / kFrames;
+  std::printf(
+      "  %d request/response pairs, mean round trip %.0f us (host -> pty -> adapter -> "
+      "bus -> node -> bus -> adapter -> pty -> host)\n",
+      kFrames, round_trip_us);
   checks->Expect(to_node == kFrames, "every host frame reached the bus node");
   checks->Expect(to_host == kFrames, "every node frame reached the host");
   checks->Expect(adapter.bitrate_code() == 8, "adapter was set to 1 Mbit/s (S8)");

@@ -1,10 +1,9 @@
 // kinevis ports: the serial ports of this machine, with USB identity, so an engineer can tell
 // which /dev/ttyUSBn is the RS485 adapter and which the Dynamixel bus.
 
-#include <nlohmann/json.hpp>
-
 #include <cstdio>
 #include <iostream>
+#include <nlohmann/json.hpp>
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"

@@ -2,9 +2,9 @@
 
 // Each file cmd_*.cc adds its subcommands to the app and registers the body to run when that
 // subcommand is the one the user chose. Bodies return an exit code (cli_common.h).
+// Simulators register under the shared `sim` subcommand (`kinevis sim dynamixel ...`).
 
 #include <CLI/CLI.hpp>
-
 #include <functional>
 #include <vector>
 
@@ -19,5 +19,12 @@ using CommandList = std::vector<Command>;
 void AddDemoCommand(CLI::App& app, CommandList* commands);
 void AddPortsCommand(CLI::App& app, CommandList* commands);
 void AddCanCommands(CLI::App& app, CommandList* commands);
+// `sim` is the shared `kinevis sim` subcommand; each adds its simulator under it.
+void AddServoCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
+void AddWeldRobotCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
+void AddCameraCommands(CLI::App& app, CommandList* commands);
+void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
+// Called by AddDriveCommands: `kinevis sim drive` and `kinevis sim rs485-drive`.
+void AddDriveSimCommands(CLI::App& sim, CommandList* commands);
 
 }  // namespace kinevis::cli

@@ -24,13 +24,23 @@ int main(int argc, char** argv) {
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, critical or off")
       ->capture_default_str()
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "critical", "off"}));
-  app.footer("Exit codes: 0 success, 1 the job failed, 2 usage or configuration error, "
-             "3 hardware or communication failure (docs/cli.md).");
+  app.footer(
+      "Exit codes: 0 success, 1 the job failed, 2 usage or configuration error, "
+      "3 hardware or communication failure (docs/cli.md).");
 
   CommandList commands;
   AddDemoCommand(app, &commands);
   AddPortsCommand(app, &commands);
   AddCanCommands(app, &commands);
+  CLI::App* sim = app.add_subcommand(
+      "sim",
+      "Run a device simulator as its own process; it prints the backend string that "
+      "reaches it as its first line and runs until SIGINT/SIGTERM");
+  sim->require_subcommand(1);
+  AddDriveCommands(app, *sim, &commands);
+  AddServoCommands(app, *sim, &commands);
+  AddWeldRobotCommands(app, *sim, &commands);
+  AddCameraCommands(app, &commands);
 
   try {
     app.parse(argc, argv);

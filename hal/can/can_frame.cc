@@ -96,7 +96,8 @@ std::string FormatCanFrame(const CanFrame& frame) {
 std::optional<CanFrame> ParseCanFrame(std::string_view text, std::string* error) {
   size_t hash = text.find('#');
   if (hash == std::string_view::npos) {
-    Fail(error, "frame \"" + std::string(text) + "\" has no '#'; expected ID#DATA like 123#DEADBEEF");
+    Fail(error,
+         "frame \"" + std::string(text) + "\" has no '#'; expected ID#DATA like 123#DEADBEEF");
     return std::nullopt;
   }
   std::string_view id_text = text.substr(0, hash);
@@ -159,17 +160,17 @@ int CanFrameWireBits(const CanFrame& frame) {
   };
   put(0, 1);  // SOF
   if (frame.extended) {
-    put(frame.id >> 18, 11);        // base id
-    put(1, 1);                      // SRR (recessive)
-    put(1, 1);                      // IDE (recessive: extended)
-    put(frame.id & 0x3FFFF, 18);    // id extension
-    put(frame.rtr ? 1 : 0, 1);      // RTR
-    put(0, 2);                      // r1, r0
+    put(frame.id >> 18, 11);      // base id
+    put(1, 1);                    // SRR (recessive)
+    put(1, 1);                    // IDE (recessive: extended)
+    put(frame.id & 0x3FFFF, 18);  // id extension
+    put(frame.rtr ? 1 : 0, 1);    // RTR
+    put(0, 2);                    // r1, r0
   } else {
     put(frame.id, 11);
-    put(frame.rtr ? 1 : 0, 1);      // RTR
-    put(0, 1);                      // IDE (dominant: standard)
-    put(0, 1);                      // r0
+    put(frame.rtr ? 1 : 0, 1);  // RTR
+    put(0, 1);                  // IDE (dominant: standard)
+    put(0, 1);                  // r0
   }
   put(frame.dlc, 4);
   int data_bytes = frame.rtr ? 0 : std::min<int>(frame.dlc, 8);
@@ -240,25 +241,38 @@ std::optional<CanFilter> ParseCanFilter(std::string_view text, std::string* erro
 
 const char* ToString(CanBusState state) {
   switch (state) {
-    case CanBusState::kErrorActive: return "error-active";
-    case CanBusState::kErrorWarning: return "error-warning";
-    case CanBusState::kErrorPassive: return "error-passive";
-    case CanBusState::kBusOff: return "bus-off";
+    case CanBusState::kErrorActive:
+      return "error-active";
+    case CanBusState::kErrorWarning:
+      return "error-warning";
+    case CanBusState::kErrorPassive:
+      return "error-passive";
+    case CanBusState::kBusOff:
+      return "bus-off";
   }
   return "?";
 }
 
 const char* ToString(CanErrorKind kind) {
   switch (kind) {
-    case CanErrorKind::kErrorWarning: return "error-warning";
-    case CanErrorKind::kErrorPassive: return "error-passive";
-    case CanErrorKind::kBusOff: return "bus-off";
-    case CanErrorKind::kRestarted: return "restarted";
-    case CanErrorKind::kRxOverflow: return "rx-overflow";
-    case CanErrorKind::kTxTimeout: return "tx-timeout";
-    case CanErrorKind::kProtocol: return "protocol-error";
-    case CanErrorKind::kNoAck: return "no-ack";
-    case CanErrorKind::kAdapter: return "adapter-error";
+    case CanErrorKind::kErrorWarning:
+      return "error-warning";
+    case CanErrorKind::kErrorPassive:
+      return "error-passive";
+    case CanErrorKind::kBusOff:
+      return "bus-off";
+    case CanErrorKind::kRestarted:
+      return "restarted";
+    case CanErrorKind::kRxOverflow:
+      return "rx-overflow";
+    case CanErrorKind::kTxTimeout:
+      return "tx-timeout";
+    case CanErrorKind::kProtocol:
+      return "protocol-error";
+    case CanErrorKind::kNoAck:
+      return "no-ack";
+    case CanErrorKind::kAdapter:
+      return "adapter-error";
   }
   return "?";
 }

@@ -17,10 +17,10 @@ struct CanFrame {
   static constexpr uint32_t kMaxStandardId = 0x7FF;
   static constexpr uint32_t kMaxExtendedId = 0x1FFFFFFF;
 
-  uint32_t id = 0;          // 11-bit (standard) or 29-bit (extended) identifier
-  bool extended = false;    // 29-bit identifier
-  bool rtr = false;         // remote transmission request (no data; dlc is the requested length)
-  uint8_t dlc = 0;          // data length code, 0..8
+  uint32_t id = 0;        // 11-bit (standard) or 29-bit (extended) identifier
+  bool extended = false;  // 29-bit identifier
+  bool rtr = false;       // remote transmission request (no data; dlc is the requested length)
+  uint8_t dlc = 0;        // data length code, 0..8
   std::array<uint8_t, 8> data{};
   // Reception time since the epoch of the backend's clock: the SteadyClock for SocketCAN (the
   // kernel's stamp converted to it) and slcan (host time of arrival); the network's Clock for
@@ -55,9 +55,9 @@ struct CanFilter {
   uint32_t id = 0;
   uint32_t mask = 0;
   bool extended = false;
-  bool match_extended = true;   // compare the frame's extended flag with `extended`
+  bool match_extended = true;  // compare the frame's extended flag with `extended`
   bool rtr = false;
-  bool match_rtr = false;       // compare the frame's rtr flag with `rtr`
+  bool match_rtr = false;  // compare the frame's rtr flag with `rtr`
   bool invert = false;
 
   bool Matches(const CanFrame& frame) const;
@@ -72,33 +72,33 @@ enum class CanBusState { kErrorActive, kErrorWarning, kErrorPassive, kBusOff };
 const char* ToString(CanBusState state);
 
 enum class CanErrorKind {
-  kErrorWarning,        // an error counter crossed 96
-  kErrorPassive,        // an error counter crossed 127
-  kBusOff,              // transmit error counter crossed 255; the controller left the bus
-  kRestarted,           // back to error-active after bus-off recovery
-  kRxOverflow,          // a receive queue (controller, kernel or host) overflowed; frames lost
-  kTxTimeout,           // a frame could not be sent in time
-  kProtocol,            // a protocol error on the bus (stuff, form, CRC, bit error)
-  kNoAck,               // a transmitted frame got no acknowledgement
-  kAdapter,             // a serial adapter reported an error or sent an undecodable line
+  kErrorWarning,  // an error counter crossed 96
+  kErrorPassive,  // an error counter crossed 127
+  kBusOff,        // transmit error counter crossed 255; the controller left the bus
+  kRestarted,     // back to error-active after bus-off recovery
+  kRxOverflow,    // a receive queue (controller, kernel or host) overflowed; frames lost
+  kTxTimeout,     // a frame could not be sent in time
+  kProtocol,      // a protocol error on the bus (stuff, form, CRC, bit error)
+  kNoAck,         // a transmitted frame got no acknowledgement
+  kAdapter,       // a serial adapter reported an error or sent an undecodable line
 };
 const char* ToString(CanErrorKind kind);
 
 struct CanErrorEvent {
   CanErrorKind kind = CanErrorKind::kProtocol;
   std::chrono::nanoseconds timestamp{0};
-  std::string detail;   // human-readable specifics (error counters, the bad line, ...)
+  std::string detail;  // human-readable specifics (error counters, the bad line, ...)
 };
 
 struct CanCounters {
-  uint64_t tx_frames = 0;        // frames handed to the bus
-  uint64_t rx_frames = 0;        // frames delivered to the caller
-  uint64_t rx_filtered = 0;      // frames dropped by a software acceptance filter
-  uint64_t rx_overflows = 0;     // frames lost because a receive queue was full
-  uint64_t tx_errors = 0;        // sends that failed (bus-off, queue full, I/O, NAK)
-  uint64_t error_events = 0;     // error events raised (all kinds)
+  uint64_t tx_frames = 0;     // frames handed to the bus
+  uint64_t rx_frames = 0;     // frames delivered to the caller
+  uint64_t rx_filtered = 0;   // frames dropped by a software acceptance filter
+  uint64_t rx_overflows = 0;  // frames lost because a receive queue was full
+  uint64_t tx_errors = 0;     // sends that failed (bus-off, queue full, I/O, NAK)
+  uint64_t error_events = 0;  // error events raised (all kinds)
   uint64_t bus_off_events = 0;
-  uint64_t decode_errors = 0;    // undecodable input skipped (slcan garbage, short frames)
+  uint64_t decode_errors = 0;  // undecodable input skipped (slcan garbage, short frames)
 };
 
 }  // namespace kinevis::hal

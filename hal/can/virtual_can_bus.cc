@@ -321,8 +321,8 @@ std::error_code VirtualCanBus::Receive(CanFrame* frame, std::chrono::microsecond
         for (const auto& p : net.pending_) earliest = std::min(earliest, p.submitted);
         Duration start = std::max(net.bus_free_at_, earliest);
         // Upper bound of one frame time (160 bits) keeps this cheap; the loop re-checks.
-        Duration end = net.options_.bitrate > 0 ? start + WireTime(160, net.options_.bitrate)
-                                                : start;
+        Duration end =
+            net.options_.bitrate > 0 ? start + WireTime(160, net.options_.bitrate) : start;
         next = std::min(next, std::max(end, now));
       }
       if (next != Duration::max()) {
@@ -419,10 +419,9 @@ void VirtualCanBus::AdjustCountersLocked(int tec_delta, int rec_delta, Duration 
     next = CanBusState::kErrorWarning;
   }
   if (next == state_) return;
-  const std::string counters =
-      "tec " + std::to_string(tec_) + ", rec " + std::to_string(rec_);
+  const std::string counters = "tec " + std::to_string(tec_) + ", rec " + std::to_string(rec_);
   if (static_cast<int>(next) > static_cast<int>(state_)) {
-    CanErrorKind kind = next == CanBusState::kBusOff       ? CanErrorKind::kBusOff
+    CanErrorKind kind = next == CanBusState::kBusOff         ? CanErrorKind::kBusOff
                         : next == CanBusState::kErrorPassive ? CanErrorKind::kErrorPassive
                                                              : CanErrorKind::kErrorWarning;
     RaiseLocked(kind, at, name_ + ": " + counters);

@@ -91,7 +91,7 @@ class VirtualCanNetwork : public std::enable_shared_from_this<VirtualCanNetwork>
     CanFrame frame;
     VirtualCanBus* sender;
     Duration submitted;
-    uint64_t sequence;   // tie-break: first come, first served among equal ids
+    uint64_t sequence;  // tie-break: first come, first served among equal ids
   };
   struct InFlight {
     CanFrame frame;
@@ -110,8 +110,8 @@ class VirtualCanNetwork : public std::enable_shared_from_this<VirtualCanNetwork>
   Clock* clock_;
   mutable std::mutex mutex_;
   std::vector<VirtualCanBus*> nodes_;
-  std::vector<Pending> pending_;       // waiting for the wire (bit-rate model or delay)
-  std::deque<InFlight> in_flight_;     // sent, delivered at deliver_at
+  std::vector<Pending> pending_;    // waiting for the wire (bit-rate model or delay)
+  std::deque<InFlight> in_flight_;  // sent, delivered at deliver_at
   Duration bus_free_at_{0};
   uint64_t sequence_ = 0;
   int node_count_ = 0;

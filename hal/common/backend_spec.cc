@@ -266,7 +266,8 @@ ModbusBackendSpec ParseModbusBackend(std::string_view text) {
     spec.serial.parity = 'E';  // the Modbus specification's default frame is 8E1
     ParseDeviceAndBaud(parts.target, &spec.serial, &problems);
   } else {
-    problems.Add("scheme \"" + parts.scheme + "\" is not a Modbus backend (modbus-tcp, modbus-rtu)");
+    problems.Add("scheme \"" + parts.scheme +
+                 "\" is not a Modbus backend (modbus-tcp, modbus-rtu)");
     problems.ThrowIfAny();
   }
   const bool rtu = spec.kind == ModbusBackendSpec::Kind::kRtu;

@@ -20,21 +20,21 @@ namespace kinevis::hal {
 
 // Serial line settings (termios or libmodbus RTU).
 struct SerialSettings {
-  std::string device;     // "/dev/ttyUSB0", "/dev/pts/5"
-  int baud = 115200;      // bit/s
-  int data_bits = 8;      // 5..8
-  char parity = 'N';      // 'N', 'E' or 'O'
-  int stop_bits = 1;      // 1 or 2
-  bool rs485 = false;     // ask the kernel for RS485 direction control (TIOCSRS485)
+  std::string device;  // "/dev/ttyUSB0", "/dev/pts/5"
+  int baud = 115200;   // bit/s
+  int data_bits = 8;   // 5..8
+  char parity = 'N';   // 'N', 'E' or 'O'
+  int stop_bits = 1;   // 1 or 2
+  bool rs485 = false;  // ask the kernel for RS485 direction control (TIOCSRS485)
 };
 
 struct CanBackendSpec {
   enum class Kind { kSocketCan, kSlcan, kVirtual };
   Kind kind = Kind::kVirtual;
-  std::string text;        // the backend string as given
-  std::string interface;   // socketcan interface name, or the virtual bus name
-  SerialSettings serial;   // slcan: the serial port of the adapter
-  int bitrate = 0;         // CAN bit rate in bit/s; 0 = keep the adapter's / no bit-rate model
+  std::string text;          // the backend string as given
+  std::string interface;     // socketcan interface name, or the virtual bus name
+  SerialSettings serial;     // slcan: the serial port of the adapter
+  int bitrate = 0;           // CAN bit rate in bit/s; 0 = keep the adapter's / no bit-rate model
   bool listen_only = false;  // slcan: open with 'L' (no ACKs, no transmission)
   bool timestamps = false;   // slcan: ask the adapter for millisecond timestamps ('Z1')
 };
@@ -43,12 +43,12 @@ struct ModbusBackendSpec {
   enum class Kind { kTcp, kRtu };
   Kind kind = Kind::kTcp;
   std::string text;
-  std::string host;        // tcp: host name or address (IPv6 in brackets in the string)
-  int port = 502;          // tcp
-  SerialSettings serial;   // rtu
-  int unit = 1;            // Modbus unit (slave) id, 0..247 (0 = broadcast)
-  int timeout_ms = 500;    // per-request response timeout
-  int retries = 2;         // extra attempts after a timeout or a dropped link (not after an exception)
+  std::string host;       // tcp: host name or address (IPv6 in brackets in the string)
+  int port = 502;         // tcp
+  SerialSettings serial;  // rtu
+  int unit = 1;           // Modbus unit (slave) id, 0..247 (0 = broadcast)
+  int timeout_ms = 500;   // per-request response timeout
+  int retries = 2;  // extra attempts after a timeout or a dropped link (not after an exception)
 };
 
 // "socketcan", "tty", ... ; throws ConfigError when there is no "scheme:".

@@ -11,8 +11,7 @@ SteadyClock& SteadyClock::Instance() {
 }
 
 Duration SteadyClock::Now() const {
-  return std::chrono::duration_cast<Duration>(
-      std::chrono::steady_clock::now().time_since_epoch());
+  return std::chrono::duration_cast<Duration>(std::chrono::steady_clock::now().time_since_epoch());
 }
 
 void SteadyClock::SleepUntil(Duration deadline) {

@@ -11,18 +11,30 @@ class HalCategoryImpl : public std::error_category {
   const char* name() const noexcept override { return "kinevis.hal"; }
   std::string message(int value) const override {
     switch (static_cast<Errc>(value)) {
-      case Errc::kTimeout: return "timed out";
-      case Errc::kBusOff: return "CAN bus-off";
-      case Errc::kClosed: return "channel closed";
-      case Errc::kIo: return "I/O error";
-      case Errc::kCrc: return "checksum error";
-      case Errc::kProtocol: return "protocol violation";
-      case Errc::kOverflow: return "overflow, data lost";
-      case Errc::kNotActive: return "device not active";
-      case Errc::kUnsupported: return "not supported by this backend";
-      case Errc::kDeviceFault: return "device fault";
-      case Errc::kInvalidArgument: return "invalid argument";
-      case Errc::kModbusException: return "Modbus exception response";
+      case Errc::kTimeout:
+        return "timed out";
+      case Errc::kBusOff:
+        return "CAN bus-off";
+      case Errc::kClosed:
+        return "channel closed";
+      case Errc::kIo:
+        return "I/O error";
+      case Errc::kCrc:
+        return "checksum error";
+      case Errc::kProtocol:
+        return "protocol violation";
+      case Errc::kOverflow:
+        return "overflow, data lost";
+      case Errc::kNotActive:
+        return "device not active";
+      case Errc::kUnsupported:
+        return "not supported by this backend";
+      case Errc::kDeviceFault:
+        return "device fault";
+      case Errc::kInvalidArgument:
+        return "invalid argument";
+      case Errc::kModbusException:
+        return "Modbus exception response";
     }
     return "unknown kinevis.hal error " + std::to_string(value);
   }

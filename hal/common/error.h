@@ -15,18 +15,18 @@
 namespace kinevis::hal {
 
 enum class Errc {
-  kTimeout = 1,       // no answer within the deadline
-  kBusOff,            // CAN controller is bus-off; it sends nothing until recovered
-  kClosed,            // the channel was closed (peer hung up, device unplugged)
-  kIo,                // an operating-system I/O call failed (see the log for errno)
-  kCrc,               // a frame arrived with a bad checksum
-  kProtocol,          // a frame arrived that the protocol does not allow here
-  kOverflow,          // a queue or buffer overflowed; data were lost
-  kNotActive,         // the device is not in the active state; commands are refused
-  kUnsupported,       // the backend cannot do this (e.g. RS485 ioctl on a pty)
-  kDeviceFault,       // the device reports a fault of its own
-  kInvalidArgument,   // a value out of range was passed in a cyclic call
-  kModbusException,   // the Modbus server answered with an exception (see the log for which)
+  kTimeout = 1,      // no answer within the deadline
+  kBusOff,           // CAN controller is bus-off; it sends nothing until recovered
+  kClosed,           // the channel was closed (peer hung up, device unplugged)
+  kIo,               // an operating-system I/O call failed (see the log for errno)
+  kCrc,              // a frame arrived with a bad checksum
+  kProtocol,         // a frame arrived that the protocol does not allow here
+  kOverflow,         // a queue or buffer overflowed; data were lost
+  kNotActive,        // the device is not in the active state; commands are refused
+  kUnsupported,      // the backend cannot do this (e.g. RS485 ioctl on a pty)
+  kDeviceFault,      // the device reports a fault of its own
+  kInvalidArgument,  // a value out of range was passed in a cyclic call
+  kModbusException,  // the Modbus server answered with an exception (see the log for which)
 };
 
 const std::error_category& HalCategory();
@@ -37,8 +37,7 @@ class HalError : public std::runtime_error {
  public:
   // device: the backend string or device name ("tty:/dev/ttyUSB0@1000000");
   // operation: what was attempted ("open", "set baud rate"); cause: why it failed.
-  HalError(std::string device, std::string operation, std::string cause,
-           std::error_code code = {});
+  HalError(std::string device, std::string operation, std::string cause, std::error_code code = {});
   const std::string& device() const { return device_; }
   const std::string& operation() const { return operation_; }
   const std::string& cause() const { return cause_; }

@@ -72,8 +72,8 @@ class TermiosSerialPort final : public SerialPort {
       // no data, before it looks at O_NONBLOCK, and a hung-up tty returns 0 for ever. poll()
       // tells the two apart.
       if (pending) return pending;
-      auto left = std::chrono::duration_cast<microseconds>(deadline -
-                                                           std::chrono::steady_clock::now());
+      auto left =
+          std::chrono::duration_cast<microseconds>(deadline - std::chrono::steady_clock::now());
       if (left <= microseconds::zero()) return Errc::kTimeout;
       pollfd p{fd_, POLLIN, 0};
       int r = ::poll(&p, 1, PollTimeoutMs(left));
@@ -99,8 +99,8 @@ class TermiosSerialPort final : public SerialPort {
       if (n < 0 && errno == EINTR) continue;
       if (n < 0 && errno == EIO) return Errc::kClosed;
       if (n < 0 && errno != EAGAIN) return Errc::kIo;
-      auto left = std::chrono::duration_cast<microseconds>(deadline -
-                                                           std::chrono::steady_clock::now());
+      auto left =
+          std::chrono::duration_cast<microseconds>(deadline - std::chrono::steady_clock::now());
       if (left <= microseconds::zero()) return Errc::kTimeout;
       pollfd p{fd_, POLLOUT, 0};
       int r = ::poll(&p, 1, PollTimeoutMs(left));
@@ -145,10 +145,18 @@ void Configure(int fd, const SerialSettings& s, const std::string& name) {
   tio.c_cflag &= ~static_cast<tcflag_t>(CSIZE | PARENB | PARODD | CSTOPB | CRTSCTS | CBAUD |
                                         (CBAUD << IBSHIFT));
   switch (s.data_bits) {
-    case 5: tio.c_cflag |= CS5; break;
-    case 6: tio.c_cflag |= CS6; break;
-    case 7: tio.c_cflag |= CS7; break;
-    default: tio.c_cflag |= CS8; break;
+    case 5:
+      tio.c_cflag |= CS5;
+      break;
+    case 6:
+      tio.c_cflag |= CS6;
+      break;
+    case 7:
+      tio.c_cflag |= CS7;
+      break;
+    default:
+      tio.c_cflag |= CS8;
+      break;
   }
   if (s.parity == 'E') tio.c_cflag |= PARENB;
   if (s.parity == 'O') tio.c_cflag |= PARENB | PARODD;
@@ -161,8 +169,8 @@ void Configure(int fd, const SerialSettings& s, const std::string& name) {
   tio.c_cc[VTIME] = 0;
   if (::ioctl(fd, TCSETS2, &tio) != 0) {
     int err = errno;
-    throw HalError(name, "set line settings (" + std::to_string(s.baud) + " bit/s)",
-                   ErrnoText(err), std::error_code(err, std::generic_category()));
+    throw HalError(name, "set line settings (" + std::to_string(s.baud) + " bit/s)", ErrnoText(err),
+                   std::error_code(err, std::generic_category()));
   }
   if (s.rs485) {
     struct serial_rs485 rs485 {};

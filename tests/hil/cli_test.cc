@@ -17,9 +17,9 @@ namespace kinevis {
 namespace {
 
 using namespace std::chrono_literals;
+using testing::BackgroundProcess;
 using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
-using testing::BackgroundProcess;
 using testing::KinevisCliPath;
 using testing::ProcessResult;
 using testing::RunProcess;

@@ -11,10 +11,10 @@
 namespace kinevis::testing {
 
 struct ProcessResult {
-  int exit_code = -1;      // exit status, or -1 when killed by a signal or timed out
+  int exit_code = -1;  // exit status, or -1 when killed by a signal or timed out
   bool timed_out = false;
-  std::string out;         // everything the child wrote to stdout
-  std::string err;         // everything the child wrote to stderr
+  std::string out;  // everything the child wrote to stdout
+  std::string err;  // everything the child wrote to stderr
 };
 
 // Runs argv[0] (looked up in PATH) with the arguments, no stdin, and collects its output.

@@ -21,8 +21,8 @@ TEST(CanFrameTest, FormatMatchesCansendSyntax) {
 }
 
 TEST(CanFrameTest, ParseRoundTrips) {
-  for (const char* text : {"123#DEADBEEF", "1F334455#1122", "000#", "7FF#0011223344556677",
-                           "701#R", "701#R8", "00000001#AB"}) {
+  for (const char* text : {"123#DEADBEEF", "1F334455#1122", "000#", "7FF#0011223344556677", "701#R",
+                           "701#R8", "00000001#AB"}) {
     std::string error;
     auto f = ParseCanFrame(text, &error);
     ASSERT_TRUE(f.has_value()) << text << ": " << error;
@@ -88,7 +88,7 @@ TEST(CanFrameTest, WireBitsStayWithinTheoreticalBounds) {
     f.dlc = static_cast<uint8_t>(rng() % 9);
     for (auto& b : f.data) b = static_cast<uint8_t>(rng());
     const int n = f.dlc;
-    const int fixed = f.extended ? 64 : 44;     // SOF..EOF without data
+    const int fixed = f.extended ? 64 : 44;      // SOF..EOF without data
     const int stuffable = f.extended ? 54 : 34;  // bits subject to stuffing without data
     int bits = CanFrameWireBits(f);
     EXPECT_GE(bits, fixed + 8 * n + 3) << FormatCanFrame(f);

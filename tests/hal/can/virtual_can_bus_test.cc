@@ -303,8 +303,7 @@ TEST(VirtualCanFaultTest, PersistentCorruptionDrivesTheSenderBusOff) {
     if (e.kind != CanErrorKind::kProtocol) kinds.push_back(e.kind);
   }
   EXPECT_EQ(kinds, (std::vector<CanErrorKind>{CanErrorKind::kErrorWarning,
-                                               CanErrorKind::kErrorPassive,
-                                               CanErrorKind::kBusOff}));
+                                              CanErrorKind::kErrorPassive, CanErrorKind::kBusOff}));
   EXPECT_EQ(a->counters().bus_off_events, 1u);
   CanFrame got;
   EXPECT_EQ(b->Receive(&got, 0us), Errc::kTimeout);

@@ -1,0 +1,19 @@
+#include "hal/drive/motor_drive.h"
+
+namespace kinevis::hal {
+
+const char* ToString(DeviceLifecycle lifecycle) {
+  switch (lifecycle) {
+    case DeviceLifecycle::kUnconfigured:
+      return "unconfigured";
+    case DeviceLifecycle::kConfigured:
+      return "configured";
+    case DeviceLifecycle::kActive:
+      return "active";
+    case DeviceLifecycle::kFault:
+      return "fault";
+  }
+  return "?";
+}
+
+}  // namespace kinevis::hal
