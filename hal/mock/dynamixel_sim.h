@@ -20,8 +20,8 @@
 //  - turning the torque on sets the goal position to the present position (the servo holds).
 // Motion model: with the torque on, the position moves towards the goal at the profile velocity
 // (1.0: moving speed), or at the table's no-load speed when that is 0 or faster, and stops at
-// the goal; acceleration is infinite. Present position, velocity, load (0.2 of the register's
-// unit at full no-load speed: a placeholder for friction, enough to see it change), moving and
+// the goal; acceleration is infinite. Present position, velocity, load (a viscous-friction
+// model: proportional to speed, 0.2 of full scale at no-load speed; no external load), moving and
 // the realtime tick follow the clock, evaluated whenever an instruction or an accessor looks.
 //
 // Not modelled: return delay time (answers go out at once), status return level (always 2),
