@@ -34,7 +34,7 @@ int32_t ToI32(double v) {
 // Rs485Drive
 
 Rs485Drive::Rs485Drive(Rs485DriveBus* bus, Rs485DriveConfig config, std::string name,
-                       std::unique_ptr<ModbusClient> client)
+                       std::shared_ptr<ModbusClient> client)
     : Cia402HostDrive(config.drive, std::move(name)),
       bus_(bus),
       config_(std::move(config)),
@@ -49,30 +49,41 @@ bool Rs485Drive::RunCyclesUntil(Duration deadline, const std::function<bool()>& 
   return bus_->RunCyclesUntil(deadline, done);
 }
 
+ModbusClient& Rs485Drive::Client() {
+  if (bus_->client_user_ != this) {
+    if (bus_->client_user_ != nullptr) bus_->client_user_->SyncClientCounters();
+    bus_->client_user_ = this;
+    client_base_ = client_->counters();
+  }
+  client_->SetUnit(config_.unit);  // validated in AddDrive: cannot fail
+  return *client_;
+}
+
 void Rs485Drive::SyncClientCounters() {
   const ModbusClientCounters c = client_->counters();
-  counters_.timeouts = c.timeouts - client_base_.timeouts;
-  counters_.crc_errors = c.crc_errors - client_base_.crc_errors;
-  counters_.retries = c.retries - client_base_.retries;
+  counters_.timeouts += c.timeouts - client_base_.timeouts;
+  counters_.crc_errors += c.crc_errors - client_base_.crc_errors;
+  counters_.retries += c.retries - client_base_.retries;
+  client_base_ = c;
 }
 
 void Rs485Drive::ThrowModbusFailure(const std::string& step, std::error_code ec) {
   exchanging_ = false;
   SetUnconfigured();
   SyncClientCounters();
-  const std::string cause = client_->last_error_text();
+  const std::string cause = Client().last_error_text();
   SetError("configure: " + step + ": " + cause, spdlog::level::err);
   throw HalError(name(), "configure: " + step, cause, ec);
 }
 
 void Rs485Drive::WriteU16(uint16_t address, uint16_t value, const char* what) {
-  if (std::error_code ec = client_->WriteRegister(address, value)) ThrowModbusFailure(what, ec);
+  if (std::error_code ec = Client().WriteRegister(address, value)) ThrowModbusFailure(what, ec);
 }
 
 void Rs485Drive::WriteU32(uint16_t address, uint32_t value, const char* what) {
   uint16_t words[2];
   SplitHighFirst(value, words);
-  if (std::error_code ec = client_->WriteRegisters(address, 2, words)) {
+  if (std::error_code ec = Client().WriteRegisters(address, 2, words)) {
     ThrowModbusFailure(what, ec);
   }
 }
@@ -83,7 +94,7 @@ void Rs485Drive::Configure() {
   SetUnconfigured();
 
   uint16_t id[8];
-  if (std::error_code ec = client_->ReadHoldingRegisters(kRegVendorId, 8, id)) {
+  if (std::error_code ec = Client().ReadHoldingRegisters(kRegVendorId, 8, id)) {
     ThrowModbusFailure("read identity and supported modes", ec);
   }
   DriveIdentity identity;
@@ -125,7 +136,7 @@ void Rs485Drive::Configure() {
     uint16_t words[4];
     SplitHighFirst(static_cast<uint32_t>(std::min(a, b)), &words[0]);
     SplitHighFirst(static_cast<uint32_t>(std::max(a, b)), &words[2]);
-    if (std::error_code ec = client_->WriteRegisters(kRegPositionLimitMin, 4, words)) {
+    if (std::error_code ec = Client().WriteRegisters(kRegPositionLimitMin, 4, words)) {
       ThrowModbusFailure("write position limits", ec);
     }
   }
@@ -141,9 +152,9 @@ void Rs485Drive::Configure() {
     SyncClientCounters();
     const std::string cause = "no answer to the cyclic exchange within " +
                               std::to_string(options().command_timeout.count()) +
-                              " ms: " + client_->last_error_text();
+                              " ms: " + Client().last_error_text();
     SetError("configure: " + cause, spdlog::level::err);
-    throw HalError(name(), "configure: first process data", cause, client_->last_error());
+    throw HalError(name(), "configure: first process data", cause, Client().last_error());
   }
   spdlog::info(
       "{}: configured: vendor {}, product {}, serial {}, modes: {}; watchdog {} ms; state '{}'",
@@ -162,7 +173,7 @@ std::error_code Rs485Drive::Exchange(Duration now, uint64_t cycle) {
   SplitHighFirst(static_cast<uint32_t>(o.target_velocity), &out[4]);
   out[6] = static_cast<uint16_t>(o.target_torque);
   uint16_t in[kCyclicInputCount];
-  const std::error_code ec = client_->WriteAndReadRegisters(
+  const std::error_code ec = Client().WriteAndReadRegisters(
       kRegControlword, kCyclicOutputCount, out, kRegStatusword, kCyclicInputCount, in);
   SyncClientCounters();
   if (!ec) {
@@ -189,7 +200,7 @@ std::error_code Rs485Drive::Exchange(Duration now, uint64_t cycle) {
   ++missed_cycles_;
   if (missed_cycles_ >= bus_->options().max_missed_cycles && !link_lost()) {
     OnLinkLost(std::to_string(missed_cycles_) +
-               " consecutive exchanges failed, the last: " + client_->last_error_text());
+               " consecutive exchanges failed, the last: " + Client().last_error_text());
   }
   return ec;
 }
@@ -198,7 +209,7 @@ std::error_code Rs485Drive::RestoreLink() {
   if (!link_lost()) return {};
   const std::error_code ec = Exchange(clock().Now(), bus_->cycle_count());
   if (!ec && !link_lost()) return {};
-  SetError("cannot reset: the drive does not answer: " + client_->last_error_text(),
+  SetError("cannot reset: the drive does not answer: " + Client().last_error_text(),
            spdlog::level::warn);
   return ec ? ec : make_error_code(Errc::kTimeout);
 }
@@ -249,12 +260,10 @@ Rs485Drive* Rs485DriveBus::AddDrive(const Rs485DriveConfig& config) {
     throw ConfigError("RS485 drive bus \"" + name_ + "\", drive \"" + config.drive.name +
                       "\" (unit " + std::to_string(config.unit) + "): " + problems);
   }
-  ModbusBackendSpec spec = spec_;
-  spec.unit = config.unit;
-  std::unique_ptr<ModbusClient> client = ModbusClient::Open(spec);
+  if (!client_) client_ = ModbusClient::Open(spec_);
   const std::string name = (config.drive.name.empty() ? std::string("drive") : config.drive.name) +
                            " (" + name_ + " unit " + std::to_string(config.unit) + ")";
-  drives_.emplace_back(new Rs485Drive(this, config, name, std::move(client)));
+  drives_.emplace_back(new Rs485Drive(this, config, name, client_));
   return drives_.back().get();
 }
 
@@ -391,9 +400,9 @@ std::error_code Rs485DriveBus::Close() {
   std::error_code first = DisableAll();
   for (const auto& d : drives_) {
     if (!d->exchanging_) continue;
-    if (std::error_code ec = d->client_->WriteRegister(kRegWatchdogMs, 0)) {
+    if (std::error_code ec = d->Client().WriteRegister(kRegWatchdogMs, 0)) {
       spdlog::warn("{}: could not switch the watchdog off: {}", d->name(),
-                   d->client_->last_error_text());
+                   d->Client().last_error_text());
       if (!first) first = ec;
     }
     d->exchanging_ = false;

@@ -24,9 +24,10 @@
 // nothing for that long faults by itself (error code 0x8130) and stops, so the host must keep
 // cycling once a drive is configured.
 //
-// Transport: each drive has its own hal::ModbusClient on the line, opened on the same serial
-// device with the drive's unit id (ModbusClient fixes the unit at Open()); the clients are used
-// one after the other from the bus's thread, so they never overlap on the line.
+// Transport: one hal::ModbusClient per line, shared by the drives of the bus; each drive
+// addresses it with its unit id (ModbusClient::SetUnit) before every request, one after the
+// other from the bus's thread, so requests never overlap on the line. Client counters are
+// attributed to the drive that made the requests.
 // Threading as for the CANopen drives: everything on one thread.
 
 #include <chrono>
@@ -64,14 +65,15 @@ class Rs485Drive final : public Cia402HostDrive {
 
   int unit() const { return config_.unit; }
   const Rs485DriveConfig& config() const { return config_; }
-  ModbusClient& client() { return *client_; }
+  // The line's client, addressed to this drive's unit.
+  ModbusClient& client() { return Client(); }
   // The following error the drive reported in the last cycle (kRegFollowingErrorActual), SI.
   double following_error_actual() const { return following_error_actual_; }
 
  private:
   friend class Rs485DriveBus;
   Rs485Drive(Rs485DriveBus* bus, Rs485DriveConfig config, std::string name,
-             std::unique_ptr<ModbusClient> client);
+             std::shared_ptr<ModbusClient> client);
 
   bool RunCyclesUntil(Duration deadline, const std::function<bool()>& done) override;
   Clock& clock() const override;
@@ -82,15 +84,18 @@ class Rs485Drive final : public Cia402HostDrive {
   [[noreturn]] void ThrowModbusFailure(const std::string& step, std::error_code ec);
   void WriteU32(uint16_t address, uint32_t value, const char* what);
   void WriteU16(uint16_t address, uint16_t value, const char* what);
+  // The shared client, addressed to this drive; attributes the counters of the previous user.
+  ModbusClient& Client();
+  // Adds the client counters since this drive took the client to this drive's counters.
   void SyncClientCounters();
 
   Rs485DriveBus* const bus_;
   const Rs485DriveConfig config_;
-  std::unique_ptr<ModbusClient> client_;
+  std::shared_ptr<ModbusClient> client_;
   bool exchanging_ = false;  // configured: exchanged in every cycle
   int missed_cycles_ = 0;    // consecutive failed exchanges
   double following_error_actual_ = 0.0;
-  ModbusClientCounters client_base_;  // client counters when this drive was created
+  ModbusClientCounters client_base_;  // client counters when this drive last took the client
 };
 
 struct Rs485DriveBusOptions {
@@ -140,12 +145,17 @@ class Rs485DriveBus final : public DriveBus {
   uint64_t cycle_count() const { return cycles_; }
 
  private:
+  friend class Rs485Drive;
   void ApplyQuickStopPolicy();
 
   const std::string name_;
   ModbusBackendSpec spec_;
   const Rs485DriveBusOptions options_;
   Clock* clock_;
+  // The line's client, opened by the first AddDrive and shared by every drive; the drive that
+  // used it last (for counter attribution, see Rs485Drive::Client()).
+  std::shared_ptr<ModbusClient> client_;
+  Rs485Drive* client_user_ = nullptr;
   std::vector<std::unique_ptr<Rs485Drive>> drives_;
   uint64_t cycles_ = 0;
   Duration last_cycle_start_{0};

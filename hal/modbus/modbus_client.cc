@@ -556,6 +556,15 @@ std::unique_ptr<ModbusClient> ModbusClient::Open(const ModbusBackendSpec& spec) 
 const std::string& ModbusClient::name() const { return impl_->name; }
 const ModbusBackendSpec& ModbusClient::spec() const { return impl_->spec; }
 bool ModbusClient::connected() const { return impl_->connected; }
+
+std::error_code ModbusClient::SetUnit(int unit) {
+  if (unit < 0 || unit > 247 || modbus_set_slave(impl_->ctx, unit) != 0) {
+    return Errc::kInvalidArgument;
+  }
+  impl_->spec.unit = unit;
+  impl_->broadcast = impl_->spec.kind == ModbusBackendSpec::Kind::kRtu && unit == 0;
+  return {};
+}
 ModbusClientCounters ModbusClient::counters() const { return impl_->counters; }
 std::error_code ModbusClient::last_error() const { return impl_->last_error; }
 std::string ModbusClient::last_error_text() const { return impl_->Text(); }

@@ -119,6 +119,10 @@ class ModbusClient {
   // False after a dropped link (and on TCP after a timeout) until the next operation has
   // reconnected.
   bool connected() const;
+  // Addresses the following requests to `unit` (0..247; RTU unit 0 = broadcast), so that one
+  // client serves every device of a multi-drop line. No I/O; Errc::kInvalidArgument when out of
+  // range.
+  std::error_code SetUnit(int unit);
 
   // Every operation below: `address` is the protocol (PDU) address of the first item, 0..65535,
   // and address + count must not exceed 65536; counts are limited as the constants above say.

@@ -82,13 +82,8 @@ class Rs485DriveTest : public ::testing::Test {
         std::make_unique<Rs485DriveSim>(pty_.master_fd(), pty_.slave_path(), &clock_, sim_options);
     clock_.AddService([this] { sim_->Step(); });
     options.clock = &clock_;
-    // One ModbusClient per drive, all on the same pty. A pty cannot keep PARENB, and glibc's
-    // tcsetattr() reports that as EINVAL once the line is already set up, so the second client
-    // of a line fails to open at 8E1 (a real UART keeps the parity bit and has no such
-    // problem): the tests run the pty at 8N1, which the simulator does not care about.
-    backend_ = sim_->backend();
-    backend_.replace(backend_.rfind(",8E1"), 4, ",8N1");
-    backend_ += link;
+    // The simulator's own backend string (8E1): one ModbusClient serves the whole line.
+    backend_ = sim_->backend() + link;
     bus_ = std::make_unique<Rs485DriveBus>(backend_, options);
     for (int unit : units) drives_.push_back(bus_->AddDrive(DriveConfig(unit)));
   }
@@ -115,7 +110,7 @@ TEST_F(Rs485DriveTest, ConfigureReadsTheIdentityAndSetsTheWatchdog) {
   drive->Configure();
   EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kConfigured);
   EXPECT_EQ(drive->name(), "arm3 (" + backend_ + " unit 3)");
-  EXPECT_THAT(backend_, ContainsRegex("^modbus-rtu:/dev/pts/[0-9]+@3000000,8N1,"));
+  EXPECT_THAT(backend_, ContainsRegex("^modbus-rtu:/dev/pts/[0-9]+@3000000,8E1,"));
   EXPECT_EQ(drive->identity().vendor_id, kSimulatorVendorId);
   EXPECT_EQ(drive->identity().product_code, 0x0485u);
   EXPECT_EQ(drive->identity().serial_number, 503u);
@@ -239,6 +234,7 @@ TEST_F(Rs485DriveTest, SilentDriveIsALinkFaultAndTheOthersQuickStop) {
   bus_->ConfigureAll();
   ASSERT_FALSE(bus_->EnableAll(1000ms));
   const uint64_t timeouts_before = drives_[1]->counters().timeouts;
+  const uint64_t other_timeouts_before = drives_[0]->counters().timeouts;
   sim_->StopAnswering(2, true);
   std::error_code ec;
   int cycles = 0;
@@ -252,6 +248,8 @@ TEST_F(Rs485DriveTest, SilentDriveIsALinkFaultAndTheOthersQuickStop) {
   EXPECT_EQ(drives_[1]->lifecycle(), DeviceLifecycle::kFault);
   EXPECT_EQ(drives_[1]->status().fault_source, DriveFaultSource::kLink);
   EXPECT_EQ(drives_[1]->counters().timeouts - timeouts_before, 3u);
+  // The line's client is shared: its timeouts are counted on the drive that made the request.
+  EXPECT_EQ(drives_[0]->counters().timeouts, other_timeouts_before);
   EXPECT_EQ(drives_[1]->counters().link_losses, 1u);
   EXPECT_THAT(drives_[1]->last_error_text(),
               ContainsRegex("^arm2 \\(modbus-rtu:.* unit 2\\): link lost: 3 consecutive "
