@@ -189,3 +189,32 @@ TEST(CliTest, DemoPassesEveryCheck) {
 
 }  // namespace
 }  // namespace kinevis
+
+namespace kinevis {
+namespace {
+
+// Two processes, as an engineer runs them at bring-up: the CANopen drive simulator behind its
+// simulated slcan adapter, and `kinevis drive` reaching it through the pty the simulator printed.
+TEST(DriveCliTest, MovesSimulatedCanopenDrivesInAnotherProcess) {
+  testing::BackgroundProcess sim({testing::KinevisCliPath(), "sim", "drive", "--nodes", "1,2"});
+  std::string backend;
+  ASSERT_TRUE(sim.ReadLine(&backend, 20s));
+  ASSERT_THAT(backend, ::testing::StartsWith("slcan:/dev/pts/"));
+  testing::ProcessResult status = Kinevis({"drive", backend, "--nodes", "1,2", "status"});
+  ASSERT_EQ(status.exit_code, 0) << status.err;
+  EXPECT_THAT(status.out, ContainsRegex("node 1.*Switch on disabled"));
+  testing::ProcessResult move =
+      Kinevis({"drive", backend, "--nodes", "1,2", "--counts-per-rad", "10000", "move",
+               "--position", "0.5", "--duration", "0.5"});
+  EXPECT_EQ(move.exit_code, 0) << move.out << move.err;
+  EXPECT_THAT(move.out, ContainsRegex("position 0\\.5"));
+  // A node that is not on the bus: a hardware error naming it, within the SDO timeout.
+  testing::ProcessResult absent = Kinevis({"drive", backend, "--nodes", "9", "status"});
+  EXPECT_FALSE(absent.timed_out);
+  EXPECT_EQ(absent.exit_code, 3);
+  EXPECT_THAT(absent.err, HasSubstr("node 9"));
+  EXPECT_EQ(sim.Stop(SIGTERM, 10s), 0);
+}
+
+}  // namespace
+}  // namespace kinevis
