@@ -34,6 +34,7 @@
 #include <optional>
 #include <string>
 #include <system_error>
+#include <vector>
 
 #include "hal/can/can_frame.h"
 #include "hal/canopen/canopen_codec.h"
@@ -130,6 +131,16 @@ class Cia402HostDrive : public MotorDrive {
   DriveMode requested_mode() const { return mode_; }
   // The controlword sent in the last cycle.
   uint16_t last_controlword() const { return last_controlword_; }
+
+  // Group operations of a bus (CanopenMaster, Rs485DriveBus): begin on every drive, run the bus's
+  // cycles until every drive has settled or the time is up, then finish each one. `run_cycles`
+  // is the bus's RunCyclesUntil(deadline, done). Return the first error, {} when all succeeded.
+  using CycleRunner = std::function<bool(Duration deadline, const std::function<bool()>& done)>;
+  static std::error_code EnableGroup(const std::vector<Cia402HostDrive*>& drives, Clock& clock,
+                                     std::chrono::milliseconds timeout, bool reset_fault,
+                                     const CycleRunner& run_cycles);
+  static std::error_code DisableGroup(const std::vector<Cia402HostDrive*>& drives, Clock& clock,
+                                      const CycleRunner& run_cycles);
 
  protected:
   // Process data of one cycle in drive units (the register / PDO contents).

@@ -345,55 +345,23 @@ void Rs485DriveBus::ConfigureAll() {
 }
 
 std::error_code Rs485DriveBus::EnableAll(std::chrono::milliseconds timeout, bool reset_fault) {
-  const Duration started = clock_->Now();
-  std::error_code first;
-  std::vector<Rs485Drive*> enabling;
-  for (const auto& d : drives_) {
-    if (d->lifecycle() == DeviceLifecycle::kActive) continue;
-    if (std::error_code ec = d->BeginEnable(reset_fault)) {
-      if (!first) first = ec;
-      continue;
-    }
-    enabling.push_back(d.get());
-  }
-  if (enabling.empty()) return first;
-  RunCyclesUntil(started + timeout, [&] {
-    return std::all_of(enabling.begin(), enabling.end(),
-                       [](Rs485Drive* d) { return d->EnableSettled(); });
-  });
-  bool failed = false;
-  for (Rs485Drive* d : enabling) {
-    if (std::error_code ec = d->FinishEnable(started)) {
-      failed = true;
-      if (!first) first = ec;
-    }
-  }
-  if (failed) RunCyclesUntil(clock_->Now(), [] { return true; });
-  return first;
+  std::vector<Cia402HostDrive*> drives(drives_.size());
+  std::transform(drives_.begin(), drives_.end(), drives.begin(),
+                 [](const auto& d) { return d.get(); });
+  return Cia402HostDrive::EnableGroup(drives, *clock_, timeout, reset_fault,
+                                      [this](Duration deadline, const std::function<bool()>& done) {
+                                        return RunCyclesUntil(deadline, done);
+                                      });
 }
 
 std::error_code Rs485DriveBus::DisableAll() {
-  std::error_code first;
-  std::vector<Rs485Drive*> disabling;
-  std::chrono::milliseconds timeout{0};
-  for (const auto& d : drives_) {
-    if (d->lifecycle() == DeviceLifecycle::kUnconfigured) continue;
-    if (std::error_code ec = d->BeginDisable()) {
-      if (!first) first = ec;
-      continue;
-    }
-    timeout = std::max(timeout, d->options().command_timeout);
-    disabling.push_back(d.get());
-  }
-  if (disabling.empty()) return first;
-  RunCyclesUntil(clock_->Now() + timeout, [&] {
-    return std::all_of(disabling.begin(), disabling.end(),
-                       [](Rs485Drive* d) { return d->DisableSettled(); });
-  });
-  for (Rs485Drive* d : disabling) {
-    if (std::error_code ec = d->FinishDisable(); ec && !first) first = ec;
-  }
-  return first;
+  std::vector<Cia402HostDrive*> drives(drives_.size());
+  std::transform(drives_.begin(), drives_.end(), drives.begin(),
+                 [](const auto& d) { return d.get(); });
+  return Cia402HostDrive::DisableGroup(
+      drives, *clock_, [this](Duration deadline, const std::function<bool()>& done) {
+        return RunCyclesUntil(deadline, done);
+      });
 }
 
 std::error_code Rs485DriveBus::Close() {
