@@ -18,23 +18,10 @@ constexpr int kMaxSide = 16384;
 constexpr double kMaxFps = 10'000.0;
 
 // Collects every problem with one source string, then throws them together.
-class Problems {
+class Problems : public ConfigProblems {
  public:
-  explicit Problems(std::string_view text) : text_(text) {}
-  void Add(std::string message) { messages_.push_back(std::move(message)); }
-  void ThrowIfAny() const {
-    if (messages_.empty()) return;
-    std::string all = "camera source \"" + text_ + "\": ";
-    for (size_t i = 0; i < messages_.size(); ++i) {
-      if (i > 0) all += "; ";
-      all += messages_[i];
-    }
-    throw ConfigError(all);
-  }
-
- private:
-  std::string text_;
-  std::vector<std::string> messages_;
+  explicit Problems(std::string_view text)
+      : ConfigProblems("camera source \"" + std::string(text) + "\"") {}
 };
 
 bool ParseInt(std::string_view s, int min, int max, int* out) {

@@ -10,23 +10,10 @@ namespace kinevis::hal {
 namespace {
 
 // Collects every problem with one backend string, then throws them together.
-class Problems {
+class Problems : public ConfigProblems {
  public:
-  explicit Problems(std::string_view text) : text_(text) {}
-  void Add(std::string message) { messages_.push_back(std::move(message)); }
-  void ThrowIfAny() const {
-    if (messages_.empty()) return;
-    std::string all = "backend \"" + text_ + "\": ";
-    for (size_t i = 0; i < messages_.size(); ++i) {
-      if (i > 0) all += "; ";
-      all += messages_[i];
-    }
-    throw ConfigError(all);
-  }
-
- private:
-  std::string text_;
-  std::vector<std::string> messages_;
+  explicit Problems(std::string_view text)
+      : ConfigProblems("backend \"" + std::string(text) + "\"") {}
 };
 
 bool ParseInt(std::string_view s, long long min, long long max, int* out) {

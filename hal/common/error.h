@@ -11,6 +11,7 @@
 #include <stdexcept>
 #include <string>
 #include <system_error>
+#include <vector>
 
 namespace kinevis::hal {
 
@@ -52,6 +53,21 @@ class HalError : public std::runtime_error {
 class ConfigError : public std::invalid_argument {
  public:
   explicit ConfigError(const std::string& message) : std::invalid_argument(message) {}
+};
+
+// Collects every problem found in one piece of configuration (a backend string, a file section),
+// then throws them together as one ConfigError: "<subject>: first; second; ...".
+class ConfigProblems {
+ public:
+  explicit ConfigProblems(std::string subject) : subject_(std::move(subject)) {}
+  void Add(std::string message) { messages_.push_back(std::move(message)); }
+  bool empty() const { return messages_.empty(); }
+  // Throws ConfigError when any problem was added.
+  void ThrowIfAny() const;
+
+ private:
+  std::string subject_;
+  std::vector<std::string> messages_;
 };
 
 // "strerror(errno)" with the errno name, for messages: "No such file or directory (ENOENT)".
