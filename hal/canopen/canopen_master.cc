@@ -17,9 +17,9 @@ constexpr auto kErrorEventLogInterval = std::chrono::seconds(1);
 }  // namespace
 
 CanopenMaster::CanopenMaster(std::unique_ptr<CanBus> bus, CanopenMasterOptions options)
-    : bus_(std::move(bus)),
-      options_(options),
-      clock_(options.clock != nullptr ? options.clock : &SteadyClock::Instance()) {
+    : Cia402DriveBus(options.clock, options.cycle_period, options.quick_stop_all_on_fault),
+      bus_(std::move(bus)),
+      options_(options) {
   std::string problems;
   auto problem = [&](const std::string& p) { problems += (problems.empty() ? "" : "; ") + p; };
   if (bus_ == nullptr) throw ConfigError("CANopen master: no CAN bus");
@@ -70,6 +70,7 @@ Cia402CanDrive* CanopenMaster::AddDrive(const Cia402CanDriveConfig& config) {
                            " (" + bus_->name() + " node " + std::to_string(config.node) + ")";
   drives_.emplace_back(new Cia402CanDrive(this, config, name));
   by_node_[config.node] = drives_.back().get();
+  AddToGroup(drives_.back().get());
   return drives_.back().get();
 }
 
@@ -193,19 +194,6 @@ void CanopenMaster::SuperviseHeartbeats(Duration now) {
   }
 }
 
-void CanopenMaster::ApplyQuickStopPolicy() {
-  Cia402CanDrive* faulted = nullptr;
-  for (const auto& d : drives_) {
-    if (d->TakeNewFault() && faulted == nullptr) faulted = d.get();
-  }
-  if (faulted == nullptr || !options_.quick_stop_all_on_fault) return;
-  for (const auto& d : drives_) {
-    if (d.get() != faulted && d->lifecycle() == DeviceLifecycle::kActive) {
-      d->SafeStop(faulted->name() + " faulted");
-    }
-  }
-}
-
 void CanopenMaster::PumpUntil(Duration deadline, const std::function<bool()>& done) {
   while (!done()) {
     CanFrame frame;
@@ -226,9 +214,7 @@ void CanopenMaster::PumpUntil(Duration deadline, const std::function<bool()>& do
 
 std::error_code CanopenMaster::Cycle() {
   ++counters_.cycles;
-  const Duration start = clock_->Now();
-  last_cycle_start_ = start;
-  cycled_ = true;
+  const Duration start = MarkCycleStart();
   DrainReceived();
   DrainErrorEvents();
   SuperviseHeartbeats(start);
@@ -284,53 +270,7 @@ std::error_code CanopenMaster::Cycle() {
       if (!result) result = Errc::kTimeout;
     }
   }
-  ApplyQuickStopPolicy();
-  if (!result) {
-    for (const auto& d : drives_) {
-      if (d->lifecycle() == DeviceLifecycle::kFault) {
-        result = d->status().fault_source == DriveFaultSource::kLink
-                     ? make_error_code(Errc::kTimeout)
-                     : make_error_code(Errc::kDeviceFault);
-        break;
-      }
-    }
-  }
-  return result;
-}
-
-bool CanopenMaster::RunCyclesUntil(Duration deadline, const std::function<bool()>& done) {
-  while (true) {
-    const Duration now = clock_->Now();
-    const Duration next = cycled_ ? last_cycle_start_ + options_.cycle_period : now;
-    if (next > now) clock_->SleepUntil(next);
-    Cycle();
-    if (done()) return true;
-    if (clock_->Now() >= deadline) return false;
-  }
-}
-
-void CanopenMaster::ConfigureAll() {
-  for (const auto& d : drives_) d->Configure();
-}
-
-std::error_code CanopenMaster::EnableAll(std::chrono::milliseconds timeout, bool reset_fault) {
-  std::vector<Cia402HostDrive*> drives(drives_.size());
-  std::transform(drives_.begin(), drives_.end(), drives.begin(),
-                 [](const auto& d) { return d.get(); });
-  return Cia402HostDrive::EnableGroup(drives, *clock_, timeout, reset_fault,
-                                      [this](Duration deadline, const std::function<bool()>& done) {
-                                        return RunCyclesUntil(deadline, done);
-                                      });
-}
-
-std::error_code CanopenMaster::DisableAll() {
-  std::vector<Cia402HostDrive*> drives(drives_.size());
-  std::transform(drives_.begin(), drives_.end(), drives.begin(),
-                 [](const auto& d) { return d.get(); });
-  return Cia402HostDrive::DisableGroup(
-      drives, *clock_, [this](Duration deadline, const std::function<bool()>& done) {
-        return RunCyclesUntil(deadline, done);
-      });
+  return FinishCycle(result);
 }
 
 }  // namespace kinevis::hal::canopen

@@ -42,6 +42,7 @@
 #include "hal/canopen/sdo_client.h"
 #include "hal/common/clock.h"
 #include "hal/drive/cia402_can_drive.h"
+#include "hal/drive/cia402_drive_bus.h"
 #include "hal/drive/motor_drive.h"
 
 namespace kinevis::hal::canopen {
@@ -73,7 +74,7 @@ struct CanopenMasterCounters {
   uint64_t unknown_frames = 0;    // frames of no configured node or service
 };
 
-class CanopenMaster final : public DriveBus, public CanFrameSource {
+class CanopenMaster final : public Cia402DriveBus, public CanFrameSource {
  public:
   // Takes the bus (opened with OpenCanBus()). Throws ConfigError for invalid options.
   explicit CanopenMaster(std::unique_ptr<CanBus> bus, CanopenMasterOptions options = {});
@@ -96,27 +97,16 @@ class CanopenMaster final : public DriveBus, public CanFrameSource {
   Cia402CanDrive* drive(uint8_t node) const;
   const std::vector<std::unique_ptr<Cia402CanDrive>>& can_drives() const { return drives_; }
 
-  // Configure() of every drive, in order; throws the first failure (HalError naming the drive).
-  void ConfigureAll();
-  // Enables every drive with one shared deadline, all at once (the state machines advance
-  // together). Returns {} or the first drive's error (each drive's last_error_text() says why).
-  std::error_code EnableAll(std::chrono::milliseconds timeout, bool reset_fault = false);
-  // Disable voltage on every configured drive at once; waits for them as Disable() does.
-  std::error_code DisableAll();
+  // ConfigureAll, EnableAll, DisableAll, RunCyclesUntil, clock(): see Cia402DriveBus.
 
   // NMT command to `node` (0: all nodes). Returns the bus's error when it could not be sent.
   std::error_code SendNmt(NmtCommand command, uint8_t node);
-
-  // Runs cycles every cycle_period until done() returns true or the clock passes `deadline`;
-  // at least one cycle. Returns done().
-  bool RunCyclesUntil(Duration deadline, const std::function<bool()>& done);
 
   // CanFrameSource: reads and dispatches frames (SDO responses, heartbeats, EMCY, TPDOs) until
   // done() or deadline, supervising the heartbeats meanwhile. No SYNC, no RPDO.
   void PumpUntil(Duration deadline, const std::function<bool()>& done) override;
 
   CanBus& bus() const { return *bus_; }
-  Clock& clock() const { return *clock_; }
   const CanopenMasterOptions& options() const { return options_; }
   CanopenMasterCounters counters() const { return counters_; }
   uint64_t cycle_count() const { return counters_.cycles; }
@@ -126,18 +116,14 @@ class CanopenMaster final : public DriveBus, public CanFrameSource {
   void DrainReceived();
   void DrainErrorEvents();
   void SuperviseHeartbeats(Duration now);
-  void ApplyQuickStopPolicy();
 
   std::unique_ptr<CanBus> bus_;
   const CanopenMasterOptions options_;
-  Clock* clock_;
   std::vector<std::unique_ptr<Cia402CanDrive>> drives_;
   std::array<Cia402CanDrive*, kMaxNodeId + 1> by_node_{};  // node id -> drive
   CanopenMasterCounters counters_;
   int outstanding_tpdos_ = 0;  // during collection: drives that have not sent both TPDOs
   bool collecting_ = false;
-  Duration last_cycle_start_{0};
-  bool cycled_ = false;
   Duration last_error_event_log_{0};
 };
 

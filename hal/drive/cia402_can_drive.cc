@@ -628,61 +628,6 @@ std::error_code Cia402HostDrive::SetTargetTorque(double torque) {
 // =============================================================================================
 // Cia402CanDrive
 
-std::error_code Cia402HostDrive::EnableGroup(const std::vector<Cia402HostDrive*>& drives,
-                                             Clock& clock, std::chrono::milliseconds timeout,
-                                             bool reset_fault, const CycleRunner& run_cycles) {
-  const Duration started = clock.Now();
-  std::error_code first;
-  std::vector<Cia402HostDrive*> enabling;
-  for (Cia402HostDrive* d : drives) {
-    if (d->lifecycle() == DeviceLifecycle::kActive) continue;
-    if (std::error_code ec = d->BeginEnable(reset_fault)) {
-      if (!first) first = ec;
-      continue;
-    }
-    enabling.push_back(d);
-  }
-  if (enabling.empty()) return first;
-  run_cycles(started + timeout, [&] {
-    return std::all_of(enabling.begin(), enabling.end(),
-                       [](Cia402HostDrive* d) { return d->EnableSettled(); });
-  });
-  bool failed = false;
-  for (Cia402HostDrive* d : enabling) {
-    if (std::error_code ec = d->FinishEnable(started)) {
-      failed = true;
-      if (!first) first = ec;
-    }
-  }
-  if (failed) run_cycles(clock.Now(), [] { return true; });
-  return first;
-}
-
-std::error_code Cia402HostDrive::DisableGroup(const std::vector<Cia402HostDrive*>& drives,
-                                              Clock& clock, const CycleRunner& run_cycles) {
-  std::error_code first;
-  std::vector<Cia402HostDrive*> disabling;
-  std::chrono::milliseconds timeout{0};
-  for (Cia402HostDrive* d : drives) {
-    if (d->lifecycle() == DeviceLifecycle::kUnconfigured) continue;
-    if (std::error_code ec = d->BeginDisable()) {
-      if (!first) first = ec;
-      continue;
-    }
-    timeout = std::max(timeout, d->options().command_timeout);
-    disabling.push_back(d);
-  }
-  if (disabling.empty()) return first;
-  run_cycles(clock.Now() + timeout, [&] {
-    return std::all_of(disabling.begin(), disabling.end(),
-                       [](Cia402HostDrive* d) { return d->DisableSettled(); });
-  });
-  for (Cia402HostDrive* d : disabling) {
-    if (std::error_code ec = d->FinishDisable(); ec && !first) first = ec;
-  }
-  return first;
-}
-
 Cia402CanDrive::Cia402CanDrive(canopen::CanopenMaster* master, Cia402CanDriveConfig config,
                                std::string name)
     : Cia402HostDrive(config.drive, name),

@@ -48,6 +48,7 @@ namespace kinevis::hal {
 namespace canopen {
 class CanopenMaster;
 }
+class Cia402DriveBus;
 
 // Target limits in SI units (see motor_drive.h). A target outside them is refused with
 // Errc::kInvalidArgument; finite position limits are also written to the drive (0x607D).
@@ -132,17 +133,8 @@ class Cia402HostDrive : public MotorDrive {
   // The controlword sent in the last cycle.
   uint16_t last_controlword() const { return last_controlword_; }
 
-  // Group operations of a bus (CanopenMaster, Rs485DriveBus): begin on every drive, run the bus's
-  // cycles until every drive has settled or the time is up, then finish each one. `run_cycles`
-  // is the bus's RunCyclesUntil(deadline, done). Return the first error, {} when all succeeded.
-  using CycleRunner = std::function<bool(Duration deadline, const std::function<bool()>& done)>;
-  static std::error_code EnableGroup(const std::vector<Cia402HostDrive*>& drives, Clock& clock,
-                                     std::chrono::milliseconds timeout, bool reset_fault,
-                                     const CycleRunner& run_cycles);
-  static std::error_code DisableGroup(const std::vector<Cia402HostDrive*>& drives, Clock& clock,
-                                      const CycleRunner& run_cycles);
-
  protected:
+  friend class Cia402DriveBus;  // group enable/disable, fault policy
   // Process data of one cycle in drive units (the register / PDO contents).
   struct ProcessOutputs {
     uint16_t controlword = 0;

@@ -218,9 +218,9 @@ std::error_code Rs485Drive::RestoreLink() {
 // Rs485DriveBus
 
 Rs485DriveBus::Rs485DriveBus(std::string backend, Rs485DriveBusOptions options)
-    : name_(std::move(backend)),
-      options_(options),
-      clock_(options.clock != nullptr ? options.clock : &SteadyClock::Instance()) {
+    : Cia402DriveBus(options.clock, options.cycle_period, options.quick_stop_all_on_fault),
+      name_(std::move(backend)),
+      options_(options) {
   spec_ = ParseModbusBackend(name_);
   std::string problems;
   auto problem = [&](const std::string& p) { problems += (problems.empty() ? "" : "; ") + p; };
@@ -264,6 +264,7 @@ Rs485Drive* Rs485DriveBus::AddDrive(const Rs485DriveConfig& config) {
   const std::string name = (config.drive.name.empty() ? std::string("drive") : config.drive.name) +
                            " (" + name_ + " unit " + std::to_string(config.unit) + ")";
   drives_.emplace_back(new Rs485Drive(this, config, name, client_));
+  AddToGroup(drives_.back().get());
   return drives_.back().get();
 }
 
@@ -290,23 +291,9 @@ Rs485Drive* Rs485DriveBus::drive(int unit) const {
   return nullptr;
 }
 
-void Rs485DriveBus::ApplyQuickStopPolicy() {
-  Rs485Drive* faulted = nullptr;
-  for (const auto& d : drives_) {
-    if (d->TakeNewFault() && faulted == nullptr) faulted = d.get();
-  }
-  if (faulted == nullptr || !options_.quick_stop_all_on_fault) return;
-  for (const auto& d : drives_) {
-    if (d.get() != faulted && d->lifecycle() == DeviceLifecycle::kActive) {
-      d->SafeStop(faulted->name() + " faulted");
-    }
-  }
-}
-
 std::error_code Rs485DriveBus::Cycle() {
   ++cycles_;
-  last_cycle_start_ = clock_->Now();
-  cycled_ = true;
+  MarkCycleStart();
   std::error_code result;
   for (const auto& d : drives_) {
     if (!d->exchanging_) continue;
@@ -315,53 +302,7 @@ std::error_code Rs485DriveBus::Cycle() {
     }
     if (std::error_code ec = d->Exchange(clock_->Now(), cycles_); ec && !result) result = ec;
   }
-  ApplyQuickStopPolicy();
-  if (!result) {
-    for (const auto& d : drives_) {
-      if (d->lifecycle() == DeviceLifecycle::kFault) {
-        result = d->status().fault_source == DriveFaultSource::kLink
-                     ? make_error_code(Errc::kTimeout)
-                     : make_error_code(Errc::kDeviceFault);
-        break;
-      }
-    }
-  }
-  return result;
-}
-
-bool Rs485DriveBus::RunCyclesUntil(Duration deadline, const std::function<bool()>& done) {
-  while (true) {
-    const Duration now = clock_->Now();
-    const Duration next = cycled_ ? last_cycle_start_ + options_.cycle_period : now;
-    if (next > now) clock_->SleepUntil(next);
-    Cycle();
-    if (done()) return true;
-    if (clock_->Now() >= deadline) return false;
-  }
-}
-
-void Rs485DriveBus::ConfigureAll() {
-  for (const auto& d : drives_) d->Configure();
-}
-
-std::error_code Rs485DriveBus::EnableAll(std::chrono::milliseconds timeout, bool reset_fault) {
-  std::vector<Cia402HostDrive*> drives(drives_.size());
-  std::transform(drives_.begin(), drives_.end(), drives.begin(),
-                 [](const auto& d) { return d.get(); });
-  return Cia402HostDrive::EnableGroup(drives, *clock_, timeout, reset_fault,
-                                      [this](Duration deadline, const std::function<bool()>& done) {
-                                        return RunCyclesUntil(deadline, done);
-                                      });
-}
-
-std::error_code Rs485DriveBus::DisableAll() {
-  std::vector<Cia402HostDrive*> drives(drives_.size());
-  std::transform(drives_.begin(), drives_.end(), drives.begin(),
-                 [](const auto& d) { return d.get(); });
-  return Cia402HostDrive::DisableGroup(
-      drives, *clock_, [this](Duration deadline, const std::function<bool()>& done) {
-        return RunCyclesUntil(deadline, done);
-      });
+  return FinishCycle(result);
 }
 
 std::error_code Rs485DriveBus::Close() {

@@ -40,6 +40,7 @@
 #include "hal/common/backend_spec.h"
 #include "hal/common/clock.h"
 #include "hal/drive/cia402_can_drive.h"
+#include "hal/drive/cia402_drive_bus.h"
 #include "hal/drive/motor_drive.h"
 #include "hal/modbus/modbus_client.h"
 
@@ -107,7 +108,7 @@ struct Rs485DriveBusOptions {
   bool quick_stop_all_on_fault = true;  // as CanopenMasterOptions
 };
 
-class Rs485DriveBus final : public DriveBus {
+class Rs485DriveBus final : public Cia402DriveBus {
  public:
   // backend: a "modbus-rtu:" backend string (its unit option is ignored: each drive has its own).
   // Throws ConfigError for a malformed string, another scheme, or invalid options. The line is
@@ -127,39 +128,29 @@ class Rs485DriveBus final : public DriveBus {
   std::vector<MotorDrive*> drives() override;
   Rs485Drive* drive(int unit) const;
 
-  void ConfigureAll();
-  std::error_code EnableAll(std::chrono::milliseconds timeout, bool reset_fault = false);
-  std::error_code DisableAll();
+  // ConfigureAll, EnableAll, DisableAll, RunCyclesUntil, clock(): see Cia402DriveBus.
   // The orderly end of the host: disables every configured drive, then switches its watchdog
   // off (a disabled drive needs no supervision, and the next host then finds it without a
   // watchdog fault) and stops exchanging with it (Configure() again to use it). Returns the
   // first error; every drive is attempted.
   std::error_code Close();
 
-  // As CanopenMaster::RunCyclesUntil.
-  bool RunCyclesUntil(Duration deadline, const std::function<bool()>& done);
-
-  Clock& clock() const { return *clock_; }
   const ModbusBackendSpec& spec() const { return spec_; }
   const Rs485DriveBusOptions& options() const { return options_; }
   uint64_t cycle_count() const { return cycles_; }
 
  private:
   friend class Rs485Drive;
-  void ApplyQuickStopPolicy();
 
   const std::string name_;
   ModbusBackendSpec spec_;
   const Rs485DriveBusOptions options_;
-  Clock* clock_;
   // The line's client, opened by the first AddDrive and shared by every drive; the drive that
   // used it last (for counter attribution, see Rs485Drive::Client()).
   std::shared_ptr<ModbusClient> client_;
   Rs485Drive* client_user_ = nullptr;
   std::vector<std::unique_ptr<Rs485Drive>> drives_;
   uint64_t cycles_ = 0;
-  Duration last_cycle_start_{0};
-  bool cycled_ = false;
 };
 
 }  // namespace kinevis::hal
