@@ -17,27 +17,7 @@
 #include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
 #include "hal/mock/canopen_drive_sim.h"
-
-// ---- Allocation counting for the steady-state test: every operator new on a thread that has
-// counting switched on is counted (the simulators' servicing switches it off, see below).
-namespace {
-thread_local bool g_count_allocations = false;
-std::atomic<uint64_t> g_allocations{0};
-
-void* CountedAlloc(std::size_t size) {
-  if (g_count_allocations) g_allocations.fetch_add(1, std::memory_order_relaxed);
-  void* p = std::malloc(size == 0 ? 1 : size);
-  if (p == nullptr) throw std::bad_alloc();
-  return p;
-}
-}  // namespace
-
-void* operator new(std::size_t size) { return CountedAlloc(size); }
-void* operator new[](std::size_t size) { return CountedAlloc(size); }
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+#include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::hal::canopen {
 namespace {
@@ -53,16 +33,6 @@ constexpr double kCountsPerRad = 65536.0 / (2 * kPi);
 
 std::string TestName() { return ::testing::UnitTest::GetInstance()->current_test_info()->name(); }
 
-// Switches allocation counting off for its scope (the simulators are not the code under test).
-class NotCounted {
- public:
-  NotCounted() : saved_(g_count_allocations) { g_count_allocations = false; }
-  ~NotCounted() { g_count_allocations = saved_; }
-
- private:
-  bool saved_;
-};
-
 // A clock whose time passes only when the code under test sleeps on it; while it passes, the
 // simulated drives are serviced, in steps no longer than `step`.
 class ServicedClock final : public Clock {
@@ -70,7 +40,7 @@ class ServicedClock final : public Clock {
   explicit ServicedClock(Duration step = 50us) : step_(step) {}
   Duration Now() const override { return time_.Now(); }
   void SleepUntil(Duration deadline) override {
-    NotCounted not_counted;
+    kinevis::testing::UncountedAllocations not_counted;  // the simulators are not under test
     while (time_.Now() < deadline) {
       time_.AdvanceTo(std::min(deadline, time_.Now() + step_));
       for (const auto& service : services_) service();
@@ -258,27 +228,26 @@ TEST_F(CanopenMasterTest, SteadyStateCycleDoesNotAllocate) {
   ASSERT_FALSE(master_->EnableAll(1000ms));
   Cycles(50);  // warm-up: queues and buffers reach their working size
   const Duration t0 = clock_.Now();
-  g_allocations = 0;
+  long allocations = 0;
   for (int k = 1; k <= 1000; ++k) {
     const double target = 0.2 * std::sin(2 * kPi * k * 1e-3);
     {
-      NotCounted not_counted;
+      kinevis::testing::UncountedAllocations not_counted;  // the simulators are not under test
       clock_.SleepUntil(t0 + k * Duration(1ms));
     }
-    g_count_allocations = true;
+    const long before = kinevis::testing::ThreadAllocations();
     for (Cia402CanDrive* d : drives_) (void)d->SetTargetPosition(target);
     const std::error_code ec = master_->Cycle();
     for (Cia402CanDrive* d : drives_) (void)d->status();
-    g_count_allocations = false;
+    allocations += kinevis::testing::ThreadAllocations() - before;
     ASSERT_FALSE(ec);
   }
-  EXPECT_EQ(g_allocations.load(), 0u);
+  EXPECT_EQ(allocations, 0);
   // The counter itself works.
-  g_count_allocations = true;
+  const long before_probe = kinevis::testing::ThreadAllocations();
   auto* probe = new int(1);
-  g_count_allocations = false;
+  EXPECT_EQ(kinevis::testing::ThreadAllocations() - before_probe, 1);
   delete probe;
-  EXPECT_EQ(g_allocations.load(), 1u);
 }
 
 TEST_F(CanopenMasterTest, HeartbeatLossFaultsThatDriveAndQuickStopsTheOthers) {

@@ -26,25 +26,7 @@
 #include "hal/common/error.h"
 #include "hal/modbus/modbus_server.h"
 #include "hal/serial/pty_pair.h"
-
-// Counts operator new calls made by the thread that sets g_count_allocations, to prove that the
-// client's operations do not allocate (the server thread is not counted).
-namespace {
-thread_local bool g_count_allocations = false;
-thread_local int g_allocations = 0;
-}  // namespace
-
-void* operator new(std::size_t size) {
-  if (g_count_allocations) ++g_allocations;
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-// GCC cannot see that every pointer reaching these came from the malloc() above.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-#pragma GCC diagnostic pop
+#include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::hal {
 namespace {
@@ -321,18 +303,17 @@ TEST_P(ModbusClientTest, OperationsDoNotAllocate) {
   // logged, the repeats only counted).
   uint16_t reg = 0;
   EXPECT_EQ(client->ReadHoldingRegisters(1000, 1, &reg), ModbusErrc::kIllegalDataAddress);
-  g_allocations = 0;
-  g_count_allocations = true;
+  const long before = testing::ThreadAllocations();  // this thread only: not the server's
   int failures = 0;
   int refusals = 0;
   for (int i = 0; i < 20; ++i) {
     failures += all_operations();
     refusals += client->ReadHoldingRegisters(1000, 1, &reg) == ModbusErrc::kIllegalDataAddress;
   }
-  g_count_allocations = false;
+  const long allocations = testing::ThreadAllocations() - before;
   EXPECT_EQ(failures, 0);
   EXPECT_EQ(refusals, 20);
-  EXPECT_EQ(g_allocations, 0);
+  EXPECT_EQ(allocations, 0);
 }
 
 TEST_P(ModbusClientTest, BadArgumentsAreRefusedWithoutSendingAnything) {

@@ -10,19 +10,7 @@
 #include <random>
 #include <vector>
 
-// Counts heap allocations so a test can prove the kinematics are allocation-free.
-namespace {
-std::atomic<long> g_allocations{0};
-}  // namespace
-
-void* operator new(std::size_t size) {
-  ++g_allocations;
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-// noinline: GCC otherwise pairs the inlined free() with `new` and warns (-Wmismatched-new-delete).
-[[gnu::noinline]] void operator delete(void* p) noexcept { std::free(p); }
-[[gnu::noinline]] void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+#include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::robots {
 namespace {
@@ -431,21 +419,21 @@ TEST(HexapodModelTest, KinematicsDoNotAllocateOnTheHeap) {
   const Vector6d q = data.q;
   const ForwardKinematicsOptions options;
 
-  const long before = g_allocations.load();
+  const long before = kinevis::testing::ThreadAllocations();
   const bool reachable = InverseKinematics(model, HexapodModel::NominalPose(), &data).ok();
   const double condition = ConditionNumber(InverseDifferential(data));
   const Matrix36d L = LegDirectionInteractionMatrix(data, 1);
   const Matrix36d L_C = LegDirectionInteractionMatrixInCamera(data, 1, X_CB);
   const ForwardKinematicsSummary summary = ForwardKinematics(model, q, guess, options, &data);
-  const long allocations = g_allocations.load() - before;
+  const long allocations = kinevis::testing::ThreadAllocations() - before;
 
   EXPECT_EQ(allocations, 0);
   // ...and the counter does see allocations made by the library.
   ForwardKinematicsOptions bad;
   bad.max_iterations = -1;
-  const long before_validate = g_allocations.load();
+  const long before_validate = kinevis::testing::ThreadAllocations();
   const std::string message = bad.Validate();
-  EXPECT_GT(g_allocations.load() - before_validate, 0);
+  EXPECT_GT(kinevis::testing::ThreadAllocations() - before_validate, 0);
   EXPECT_THAT(message, ContainsRegex("max_iterations = -1"));
   // The calls above did real work (and were not optimised away).
   EXPECT_TRUE(reachable);

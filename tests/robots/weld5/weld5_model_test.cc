@@ -9,18 +9,7 @@
 #include <new>
 #include <random>
 
-// Counting global operator new, to prove FK and the Jacobian do not allocate.
-namespace {
-std::atomic<long> g_allocations{0};
-}  // namespace
-
-void* operator new(std::size_t size) {
-  ++g_allocations;
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+#include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::robots {
 namespace {
@@ -199,19 +188,19 @@ TEST(Weld5Model, ForwardKinematicsJacobianAndIkDoNotAllocate) {
   Vector5d q;
   q << 0.1, 0.2, 0.3, 0.4, 0.5;
   Weld5Data data;
-  const long before = g_allocations.load();
+  const long before = kinevis::testing::ThreadAllocations();
   Weld5ForwardKinematics(m, q, &data);
   const Matrix65d J = DhGeometricJacobian(m.joints, q, m.X_5T);
   const Eigen::Isometry3d X = DhForwardKinematics(m.joints, q);
   Vector5d guess = q;
   guess(0) += 0.1;
   const Weld5IkResult r = Weld5InverseKinematics(m, data.p_0T, data.u_0T, guess);
-  const long after = g_allocations.load();
+  const long after = kinevis::testing::ThreadAllocations();
   EXPECT_EQ(after - before, 0);
   EXPECT_TRUE(r.converged());
   // The counter does see heap allocations.
   int* probe = new int(1);
-  EXPECT_EQ(g_allocations.load() - after, 1);
+  EXPECT_EQ(kinevis::testing::ThreadAllocations() - after, 1);
   delete probe;
   EXPECT_TRUE(J.isApprox(data.J));  // keep the results alive
   EXPECT_TRUE(X.isApprox(data.X_0L[4]));
