@@ -23,6 +23,10 @@ void AddCanCommands(CLI::App& app, CommandList* commands);
 void AddServoCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
 void AddWeldRobotCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
 void AddCameraCommands(CLI::App& app, CommandList* commands);
+// `kinevis calibrate ...`: one subcommand per calibration routine (camera, later robots).
+void AddCalibrateCommands(CLI::App& app, CommandList* commands);
+// `kinevis model hexapod|diamond|weld5 fk|ik ...` and `kinevis project MODEL ...`.
+void AddModelCommands(CLI::App& app, CommandList* commands);
 void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
 // Called by AddDriveCommands: `kinevis sim drive` and `kinevis sim rs485-drive`.
 void AddDriveSimCommands(CLI::App& sim, CommandList* commands);

@@ -41,6 +41,8 @@ int main(int argc, char** argv) {
   AddServoCommands(app, *sim, &commands);
   AddWeldRobotCommands(app, *sim, &commands);
   AddCameraCommands(app, &commands);
+  AddCalibrateCommands(app, &commands);
+  AddModelCommands(app, &commands);
 
   try {
     app.parse(argc, argv);
