@@ -38,6 +38,10 @@ int RunGuarded(const std::string& command, const std::function<int()>& body) {
   } catch (const hal::HalError& e) {
     std::cerr << "kinevis " << command << ": " << e.what() << "\n";
     return kExitHardware;
+  } catch (const std::invalid_argument& e) {
+    // Bad input found by a library (a robot description or camera file, model parameters).
+    std::cerr << "kinevis " << command << ": " << e.what() << "\n";
+    return kExitUsage;
   } catch (const std::exception& e) {
     std::cerr << "kinevis " << command << ": " << e.what() << "\n";
     return kExitJobFailed;

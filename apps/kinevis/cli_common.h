@@ -24,7 +24,8 @@ bool StopRequested();
 void RequestStop();
 
 // Runs a command body; maps exceptions to exit codes and prints them on stderr as
-// "kinevis <command>: <message>": hal::ConfigError -> 2, hal::HalError -> 3, other -> 1.
+// "kinevis <command>: <message>": hal::ConfigError and other std::invalid_argument (bad
+// files or parameters found by a library) -> 2, hal::HalError -> 3, other -> 1.
 int RunGuarded(const std::string& command, const std::function<int()>& body);
 
 // For `kinevis sim ...`: prints `backend` as the first line of standard output (flushed), then

@@ -28,7 +28,7 @@ int32_t JointUnits(double si) {
 std::array<WeldRobotSim::JointLimit, wr::kJointCount> WeldRobotSim::DefaultJointLimits() {
   return {{{-170 * kDeg, 170 * kDeg, 90 * kDeg},
            {-120 * kDeg, 120 * kDeg, 90 * kDeg},
-           {0.0, 0.300, 0.050},
+           {0.0, 0.500, 0.050},
            {-180 * kDeg, 180 * kDeg, 90 * kDeg},
            {-120 * kDeg, 120 * kDeg, 90 * kDeg}}};
 }

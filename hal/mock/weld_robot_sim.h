@@ -67,7 +67,8 @@ class WeldRobotSim {
 
   struct Options {
     // Joint limits and speed limits of [θ1, θ2, pz3, θ4, θ5]. Defaults: θ1 ±170°, θ2 ±120°,
-    // pz3 0..300 mm, θ4 ±180°, θ5 ±120°; 90°/s for the rotary joints, 50 mm/s for pz3.
+    // pz3 0..500 mm, θ4 ±180°, θ5 ±120°; 90°/s for the rotary joints, 50 mm/s for pz3 — the
+    // same as robots::Weld5Model::Seed() and robots/weld5/weld5.yaml (a test checks all three).
     std::array<JointLimit, weld_robot::kJointCount> joints = DefaultJointLimits();
     // Where the robot stands at power-on (within the limits).
     std::array<double, weld_robot::kJointCount> initial_joints = {0.0, 0.0, 0.05, 0.0, 0.0};

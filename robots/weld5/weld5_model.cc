@@ -19,8 +19,10 @@ Weld5Model MakeModel(double alpha1, double a1, double theta1_offset, double thet
   m.joints[2] = DhJoint{0.0, -90.0 * kDeg, 0.0, 0.0, true};
   m.joints[3] = DhJoint{0.0, 90.0 * kDeg, 0.0, 0.0, false};
   m.joints[4] = DhJoint{0.0, 0.0, 0.0, 0.0, false};
-  m.q_min << -170.0 * kDeg, -120.0 * kDeg, 0.10, -135.0 * kDeg, -180.0 * kDeg;
-  m.q_max << 170.0 * kDeg, 120.0 * kDeg, 0.60, 135.0 * kDeg, 180.0 * kDeg;
+  // The same limits as the weld-robot simulator's defaults and robots/weld5/weld5.yaml.
+  m.q_min << -170.0 * kDeg, -120.0 * kDeg, 0.0, -180.0 * kDeg, -120.0 * kDeg;
+  m.q_max << 170.0 * kDeg, 120.0 * kDeg, 0.50, 180.0 * kDeg, 120.0 * kDeg;
+  m.qd_max << 90.0 * kDeg, 90.0 * kDeg, 0.05, 90.0 * kDeg, 90.0 * kDeg;
   m.X_5T = X_5T;
   return m;
 }
@@ -87,10 +89,13 @@ Solve RunDls(const Weld5Model& model, const Eigen::Vector3d& p_t, const Eigen::V
       return s;
     }
     if (it == o.max_iterations) break;
-    // Damped least squares: Δq = Jᵀ (J Jᵀ + λ² I)⁻¹ r.
+    // Damped least squares: Δq = Jᵀ (J Jᵀ + λ² I)⁻¹ r. λ shrinks with the residual
+    // (Levenberg's rule, λ = damping · min(1, |r| / 1 cm)): full damping far from the target keeps
+    // steps sane near singular poses, and near it the iteration becomes Gauss–Newton, so a nearly
+    // singular pose still converges in a few steps instead of crawling at λ²/(σ² + λ²) per step.
+    const double lambda = o.damping * std::min(1.0, res.r.norm() / 0.01);
     const Eigen::Matrix<double, 5, 5> A =
-        res.J * res.J.transpose() +
-        (o.damping * o.damping) * Eigen::Matrix<double, 5, 5>::Identity();
+        res.J * res.J.transpose() + (lambda * lambda) * Eigen::Matrix<double, 5, 5>::Identity();
     Vector5d dq = res.J.transpose() * A.ldlt().solve(res.r);
     const double m = dq.cwiseAbs().maxCoeff();
     if (m > o.max_step) dq *= o.max_step / m;

@@ -106,15 +106,19 @@ struct Weld5Model {
   // Joint limits on q (rad for joints 1, 2, 4, 5; m for joint 3), q_min < q_max.
   Vector5d q_min = Vector5d::Zero();
   Vector5d q_max = Vector5d::Zero();
+  // Joint speed limits (rad/s for joints 1, 2, 4, 5; m/s for joint 3), > 0.
+  Vector5d qd_max = Vector5d::Zero();
   // Torch tip and axis in link frame 5 (the seed's px5, pz5 and tilt β; from configuration).
   Eigen::Isometry3d X_5T = Eigen::Isometry3d::Identity();
 
   // Seed 004 parameters in SI: α1 = −89.827°, α2 = 90°, d1 = pz1 = 0.275 m, d2 = pz2 = 0.104718 m,
   // a1 = px1 = −0.059e-3 m, a2 = px2 = 0.033389 m, θ1 offset +0.1097°, θ2 offset +89.602°;
   // α3 = −90°, α4 = +90°, α5 = 0 and zero a, d for links 3–5, which are what eq. (35)–(46)
-  // imply (see README.md). Joint limits are not in the seed; these are assumptions:
-  // θ1 ∈ [−170°, 170°], θ2 ∈ [−120°, 120°], pz3 ∈ [0.10, 0.60] m, θ4 ∈ [−135°, 135°],
-  // θ5 ∈ [−180°, 180°]. X_5T is the torch transform given by the caller.
+  // imply (see README.md). Joint and speed limits are not in the seed; these are assumptions,
+  // the same as the weld-robot simulator's defaults and robots/weld5/weld5.yaml:
+  // θ1 ∈ [−170°, 170°], θ2 ∈ [−120°, 120°], pz3 ∈ [0, 0.50] m, θ4 ∈ [−180°, 180°],
+  // θ5 ∈ [−120°, 120°]; 90°/s for the rotary joints, 0.05 m/s for pz3.
+  // X_5T is the torch transform given by the caller.
   static Weld5Model Seed(const Eigen::Isometry3d& X_5T);
   // The seed geometry with ideal values as eq. (35)–(46) assume them: α1 = −90°, a1 = 0, both
   // joint offsets 0.

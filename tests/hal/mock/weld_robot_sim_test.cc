@@ -146,9 +146,9 @@ TEST_F(WeldRobotSimTest, IdentityRegistersDescribeTheRobotAndItsLimits) {
   EXPECT_EQ(wr::GetI32(limit(0, wr::kJointLimitMaxOffset)), 2967060);
   EXPECT_EQ(wr::GetU32(limit(0, wr::kJointLimitSpeedOffset)), 1570796u);
   EXPECT_EQ(wr::GetI32(limit(1, wr::kJointLimitMaxOffset)), 2094395);  // 120°
-  // pz3 0..300 mm at 50 mm/s, in µm.
+  // pz3 0..500 mm at 50 mm/s, in µm.
   EXPECT_EQ(wr::GetI32(limit(2, wr::kJointLimitMinOffset)), 0);
-  EXPECT_EQ(wr::GetI32(limit(2, wr::kJointLimitMaxOffset)), 300000);
+  EXPECT_EQ(wr::GetI32(limit(2, wr::kJointLimitMaxOffset)), 500000);
   EXPECT_EQ(wr::GetU32(limit(2, wr::kJointLimitSpeedOffset)), 50000u);
   EXPECT_EQ(wr::GetI32(limit(3, wr::kJointLimitMinOffset)), -3141593);  // -180°
   EXPECT_EQ(wr::GetI32(limit(4, wr::kJointLimitMinOffset)), -2094395);  // -120°

@@ -162,7 +162,7 @@ TEST_P(WeldRobotClientTest, ConfigureReadsTheIdentityAndLimitsInSiUnits) {
   EXPECT_NEAR(id.joints[0].min, -170 * deg, 1e-6);
   EXPECT_NEAR(id.joints[1].max, 120 * deg, 1e-6);
   EXPECT_DOUBLE_EQ(id.joints[2].min, 0.0);
-  EXPECT_DOUBLE_EQ(id.joints[2].max, 0.3);
+  EXPECT_DOUBLE_EQ(id.joints[2].max, 0.5);
   EXPECT_DOUBLE_EQ(id.joints[2].max_speed, 0.05);
   EXPECT_NEAR(id.joints[3].max, 180 * deg, 1e-6);
   EXPECT_NEAR(id.joints[4].max_speed, 90 * deg, 1e-6);
