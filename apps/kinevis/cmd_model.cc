@@ -31,6 +31,9 @@ struct ModelOptions {
   std::vector<double> tip_mm;      // torch tip in frame 0 (mm)
   std::vector<double> axis;        // torch axis in frame 0
   double axis_tolerance_deg = -1;  // < 0: the library's default
+  std::vector<double> diamond_joints;  // q1, q2 (deg)
+  std::vector<double> task;            // φ, γ (deg)
+  std::vector<double> direction;       // tool axis in O
   bool json = false;
 };
 
@@ -271,6 +274,78 @@ int RunWeld5Ik(const ModelOptions& o) {
   return r.converged() ? kExitOk : kExitJobFailed;
 }
 
+robots::DiamondDescription Diamond(const ModelOptions& o) {
+  if (!o.robot_file.empty()) return robots::LoadDiamondDescription(o.robot_file);
+  robots::DiamondDescription d;
+  d.name = "diamond-apriori (built in; robots/diamond/diamond_apriori.yaml)";
+  d.model = robots::DiamondModel::APriori();
+  return d;
+}
+
+void PrintDiamondPose(const robots::DiamondModel& m, const robots::DiamondData& data, bool json,
+                      const std::string& name, const robots::DiamondReachability& reach) {
+  const robots::DiamondSingularityReport sing =
+      data.valid ? robots::AnalyzeSingularity(m, data) : robots::DiamondSingularityReport{};
+  if (json) {
+    nlohmann::json out{{"robot", name}, {"ok", reach.ok()}, {"problem", reach.Describe()}};
+    if (data.valid) {
+      out["joints_deg"] = {data.q(0) / kDeg, data.q(1) / kDeg};
+      out["task_deg"] = {{"phi", data.task(0) / kDeg}, {"gamma", data.task(1) / kDeg}};
+      out["tool_point_mm"] = {data.p_O_T.x() * 1e3, data.p_O_T.y() * 1e3, data.p_O_T.z() * 1e3};
+      out["singularity"] = robots::ToString(sing.kind);
+      out["task_condition"] = sing.task_condition;
+    }
+    std::cout << out.dump(2) << "\n";
+    return;
+  }
+  std::printf("robot: %s\n", name.c_str());
+  if (data.valid) {
+    std::printf("joints: q1 %.4f°, q2 %.4f°\n", data.q(0) / kDeg, data.q(1) / kDeg);
+    std::printf("task: φ %.4f°, γ %.4f°\n", data.task(0) / kDeg, data.task(1) / kDeg);
+    std::printf("tool point (RCM frame): %.4f %.4f %.4f mm\n", data.p_O_T.x() * 1e3,
+                data.p_O_T.y() * 1e3, data.p_O_T.z() * 1e3);
+    std::printf("condition of d(φ,γ)/dq: %.3g (%s)\n", sing.task_condition,
+                robots::ToString(sing.kind));
+  }
+  std::printf("%s\n", reach.ok() ? "within the joint limits and the workspace"
+                                  : ("NOT ok: " + reach.Describe()).c_str());
+}
+
+int RunDiamondFk(const ModelOptions& o) {
+  RequireCount(o.diamond_joints, 2, "--joints", "q1,q2 (deg)");
+  const robots::DiamondDescription d = Diamond(o);
+  robots::DiamondData data;
+  const Eigen::Vector2d q(o.diamond_joints[0] * kDeg, o.diamond_joints[1] * kDeg);
+  const robots::DiamondReachability reach = robots::ForwardKinematics(d.model, q, &data);
+  PrintDiamondPose(d.model, data, o.json, d.name, reach);
+  return reach.ok() ? kExitOk : kExitJobFailed;
+}
+
+int RunDiamondIk(const ModelOptions& o) {
+  if (o.task.empty() == o.direction.empty()) {
+    throw hal::ConfigError("model diamond ik: give exactly one of --task or --direction");
+  }
+  const robots::DiamondDescription d = Diamond(o);
+  Eigen::Vector2d q;
+  robots::DiamondReachability reach;
+  if (!o.task.empty()) {
+    RequireCount(o.task, 2, "--task", "phi,gamma (deg)");
+    reach = robots::InverseKinematics(d.model, Eigen::Vector2d(o.task[0], o.task[1]) * kDeg, &q);
+  } else {
+    RequireCount(o.direction, 3, "--direction", "ux,uy,uz (RCM frame)");
+    const Eigen::Vector3d u(o.direction[0], o.direction[1], o.direction[2]);
+    if (!(u.norm() > 1e-12)) throw hal::ConfigError("--direction: must not be the zero vector");
+    reach = robots::InverseKinematicsFromDirection(d.model, u, &q);
+  }
+  robots::DiamondData data;
+  const bool solved = q.allFinite() && !reach.Has(robots::DiamondReach::kInvalidInput) &&
+                      !reach.Has(robots::DiamondReach::kNoAssembly) &&
+                      !reach.Has(robots::DiamondReach::kUnreachable);
+  if (solved) robots::ForwardKinematics(d.model, q, &data);
+  PrintDiamondPose(d.model, data, o.json, d.name, reach);
+  return reach.ok() ? kExitOk : kExitJobFailed;
+}
+
 }  // namespace
 
 void AddModelCommands(CLI::App& app, CommandList* commands) {
@@ -330,6 +405,22 @@ void AddModelCommands(CLI::App& app, CommandList* commands) {
       ->check(CLI::NonNegativeNumber);
   robot_option(wik, "robots/weld5/weld5.yaml");
   commands->push_back({wik, [o] { return RunWeld5Ik(*o); }});
+
+  CLI::App* diamond =
+      model->add_subcommand("diamond", "DIAMOND spherical parallelogram robot (seed 001)");
+  diamond->require_subcommand(1);
+  CLI::App* dfk = diamond->add_subcommand("fk", "Tool direction (φ, γ) and point for joint readings");
+  dfk->add_option("--joints", o->diamond_joints, "q1,q2 (deg)")->delimiter(',')->required();
+  robot_option(dfk, "robots/diamond/diamond_apriori.yaml");
+  commands->push_back({dfk, [o] { return RunDiamondFk(*o); }});
+  CLI::App* dik = diamond->add_subcommand(
+      "ik", "Joint readings for a tool direction, on the collision-free branch");
+  dik->add_option("--task", o->task, "φ,γ (deg): azimuth and polar angle of the tool axis")
+      ->delimiter(',');
+  dik->add_option("--direction", o->direction, "Tool axis ux,uy,uz in the RCM frame")
+      ->delimiter(',');
+  robot_option(dik, "robots/diamond/diamond_apriori.yaml");
+  commands->push_back({dik, [o] { return RunDiamondIk(*o); }});
 }
 
 }  // namespace kinevis::cli

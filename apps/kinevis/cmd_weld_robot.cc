@@ -19,6 +19,7 @@
 #include "apps/kinevis/commands.h"
 #include "hal/common/error.h"
 #include "hal/mock/weld_robot_sim.h"
+#include "robots/io/robot_description.h"
 #include "hal/weld/weld_robot_client.h"
 #include "hal/weld/weld_robot_registers.h"
 
@@ -291,12 +292,24 @@ struct SimOptions {
   std::string link;
   int buffer = 16;
   int unit = 1;
+  std::string robot_file;  // robot description: joint and speed limits
 };
 
 int RunSim(const SimOptions& o) {
   hal::WeldRobotSim::Options options;
   options.buffer_capacity = o.buffer;
   options.unit = o.unit;
+  if (!o.robot_file.empty()) {
+    // The simulated controller enforces the limits of the robot description (the same file the
+    // path planner and `kinevis model weld5` read).
+    const robots::Weld5Description d = robots::LoadWeld5Description(o.robot_file);
+    for (int j = 0; j < robots::kWeld5Joints; ++j) {
+      options.joints[j] = {d.model.q_min(j), d.model.q_max(j), d.model.qd_max(j)};
+      // Power-on pose: the default where it is within the limits, else the middle of the range.
+      double& q0 = options.initial_joints[j];
+      if (q0 < d.model.q_min(j) || q0 > d.model.q_max(j)) q0 = 0.5 * (d.model.q_min(j) + d.model.q_max(j));
+    }
+  }
   std::unique_ptr<hal::WeldRobotSim> sim;
   if (o.rtu) {
     sim = hal::WeldRobotSim::ServeRtu(options, o.link);
@@ -397,6 +410,12 @@ void AddWeldRobotCommands(CLI::App& app, CLI::App& sim, CommandList* commands) {
   sim_robot->add_option("--unit", s->unit, "Modbus unit id")
       ->capture_default_str()
       ->check(CLI::Range(1, 247));
+  sim_robot
+      ->add_option("--robot", s->robot_file,
+                   "Robot description YAML whose joint and speed limits the controller enforces "
+                   "(docs/robot-description.md; default: the same values as "
+                   "robots/weld5/weld5.yaml)")
+      ->check(CLI::ExistingFile);
   sim_robot->footer(
       "Prints the backend string as its first line, then serves until SIGINT/SIGTERM.");
   commands->push_back({sim_robot, [s] { return RunSim(*s); }});

@@ -300,4 +300,40 @@ Weld5Description LoadWeld5Description(const std::string& path) {
   return d;
 }
 
+DiamondDescription LoadDiamondDescription(const std::string& path) {
+  Reader r(path);
+  r.ExpectKind("diamond");
+  DiamondDescription d;
+  const YAML::Node& root = r.root();
+  d.name = r.String(root, "name", "", false);
+  DiamondModel& m = d.model;
+  m.radius = r.Length(root, "radius", "");
+  m.alpha = r.Angle(root, "alpha", "");
+  m.beta = r.Angle(root, "beta", "");
+  // Pairs of angles: `key: [a, b]` (rad) or `key_deg: [a, b]`.
+  const auto pair = [&r, &root](const std::string& key, std::array<double, kDiamondJoints>* out) {
+    const bool si = static_cast<bool>(root[key]);
+    const bool deg = static_cast<bool>(root[key + "_deg"]);
+    if (si == deg) {
+      r.Problem(key + (si ? " and " + key + "_deg: give one, not both" : " (or " + key + "_deg): missing"));
+      return;
+    }
+    const auto v = r.Numbers(root[si ? key : key + "_deg"], kDiamondJoints, si ? key : key + "_deg");
+    for (int i = 0; i < kDiamondJoints; ++i) (*out)[i] = si ? v[i] : v[i] * kDeg;
+  };
+  pair("joint_offsets", &m.joint_offsets);
+  pair("theta_min", &m.theta_min);
+  pair("theta_max", &m.theta_max);
+  m.separation_min = r.Angle(root, "separation_min", "");
+  m.separation_max = r.Angle(root, "separation_max", "");
+  m.phi_min = r.Angle(root, "phi_min", "");
+  m.phi_max = r.Angle(root, "phi_max", "");
+  m.gamma_min = r.Angle(root, "gamma_min", "");
+  m.gamma_max = r.Angle(root, "gamma_max", "");
+  r.ThrowIfAny();
+  if (const std::string bad = m.Validate(); !bad.empty()) r.Problem(bad);
+  r.ThrowIfAny();
+  return d;
+}
+
 }  // namespace kinevis::robots

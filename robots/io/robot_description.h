@@ -2,7 +2,7 @@
 
 // Robot description files: the nominal (CAD) parameters of each robot as YAML, read into the
 // models of robots/. The format is documented in docs/robot-description.md; the shipped files are
-// robots/hexapod/hexapod.yaml, robots/weld5/weld5.yaml and robots/diamond/diamond*.yaml.
+// robots/hexapod/hexapod.yaml, robots/weld5/weld5.yaml and robots/diamond/diamond_{apriori,identified}.yaml.
 //
 // This folder is the one part of robots/ that reads files (yaml-cpp); the models themselves stay
 // Eigen-only. Values are SI unless the key names its unit (`alpha_deg`, `d_mm`): the reader
@@ -15,6 +15,7 @@
 #include <Eigen/Geometry>
 #include <string>
 
+#include "robots/diamond/diamond_model.h"
 #include "robots/hexapod/hexapod_model.h"
 #include "robots/weld5/weld5_model.h"
 
@@ -35,5 +36,11 @@ struct Weld5Description {
   Weld5Model model;  // including the torch transform X_5T and joint/speed limits
 };
 Weld5Description LoadWeld5Description(const std::string& path);
+
+struct DiamondDescription {
+  std::string name;
+  DiamondModel model;  // checked with DiamondModel::Validate()
+};
+DiamondDescription LoadDiamondDescription(const std::string& path);
 
 }  // namespace kinevis::robots

@@ -84,6 +84,26 @@ TEST(ModelCli, Weld5UnreachableTargetIsAFailedJob) {
   EXPECT_THAT(ik.out, HasSubstr("not reachable"));
 }
 
+TEST(ModelCli, DiamondIkThenFkReturnsTheTaskOnBothParameterSets) {
+  for (const char* file : {"diamond_apriori.yaml", "diamond_identified.yaml"}) {
+    SCOPED_TRACE(file);
+    const std::string robot = std::string(KINEVIS_SOURCE_DIR) + "/robots/diamond/" + file;
+    const ProcessResult ik =
+        Kinevis({"model", "diamond", "ik", "--task", "80,50", "--robot", robot, "--json"});
+    ASSERT_EQ(ik.exit_code, 0) << ik.err;
+    const auto q = nlohmann::json::parse(ik.out)["joints_deg"];
+    const ProcessResult fk =
+        Kinevis({"model", "diamond", "fk", "--joints", Csv(q), "--robot", robot, "--json"});
+    ASSERT_EQ(fk.exit_code, 0) << fk.err;
+    const auto task = nlohmann::json::parse(fk.out)["task_deg"];
+    EXPECT_NEAR(task["phi"].get<double>(), 80.0, 1e-5);
+    EXPECT_NEAR(task["gamma"].get<double>(), 50.0, 1e-5);
+  }
+  const ProcessResult out = Kinevis({"model", "diamond", "ik", "--task", "90,88"});
+  EXPECT_EQ(out.exit_code, 1);
+  EXPECT_THAT(out.out, HasSubstr("outside the workspace"));
+}
+
 TEST(ModelCli, BadInputIsAUsageErrorThatSaysWhatIsWrong) {
   ProcessResult r = Kinevis({"model", "hexapod", "fk", "--legs", "0.45,0.46"});
   EXPECT_EQ(r.exit_code, 2);

@@ -10,6 +10,7 @@
 #include <csignal>
 #include <cstdio>
 #include <fstream>
+#include <iterator>
 #include <memory>
 #include <string>
 #include <vector>
@@ -64,6 +65,26 @@ TEST(WeldRobotCliTest, SimPrintsItsBackendAndExitsZeroOnSigterm) {
   EXPECT_THAT(status.out, HasSubstr("buffer: 0/8 segments"));
   EXPECT_THAT(status.out, HasSubstr("joints: θ1 0.000°, θ2 0.000°, pz3 50.000 mm"));
   EXPECT_EQ(sim.Stop(), 0);
+}
+
+TEST(WeldRobotCliTest, SimEnforcesTheLimitsOfARobotDescription) {
+  // The shipped description with θ1 limited to ±30°.
+  std::ifstream in(std::string(KINEVIS_SOURCE_DIR) + "/robots/weld5/weld5.yaml");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string from = "limits: {min_deg: -170, max_deg: 170, speed_deg_s: 90}";
+  ASSERT_NE(text.find(from), std::string::npos);
+  text.replace(text.find(from), from.size(), "limits: {min_deg: -30, max_deg: 30, speed_deg_s: 90}");
+  const std::string robot = WriteFile("narrow.yaml", text);
+  SimProcess sim({"--robot", robot});
+  ProcessResult inside =
+      Kinevis({"weld-robot", sim.backend(), "move", "--joints", "20,0,50,0,0", "--duration", "0.5"});
+  EXPECT_EQ(inside.exit_code, 0) << inside.err;
+  ProcessResult outside =
+      Kinevis({"weld-robot", sim.backend(), "move", "--joints", "40,0,50,0,0", "--duration", "1"});
+  EXPECT_NE(outside.exit_code, 0);
+  EXPECT_THAT(outside.out + outside.err, HasSubstr("θ1"));
+  EXPECT_EQ(sim.Stop(), 0);
+  std::remove(robot.c_str());
 }
 
 TEST(WeldRobotCliTest, MoveStreamArcStopAndReset) {

@@ -79,6 +79,54 @@ TEST(RobotDescription, ShippedWeld5FileIsTheSeedModelAndTheSimulatorsLimits) {
   }
 }
 
+void ExpectSameDiamond(const DiamondModel& a, const DiamondModel& b) {
+  EXPECT_NEAR(a.radius, b.radius, 1e-15);
+  EXPECT_NEAR(a.alpha, b.alpha, 1e-12);
+  EXPECT_NEAR(a.beta, b.beta, 1e-12);
+  for (int i = 0; i < kDiamondJoints; ++i) {
+    EXPECT_NEAR(a.joint_offsets[i], b.joint_offsets[i], 1e-12);
+    EXPECT_NEAR(a.theta_min[i], b.theta_min[i], 1e-12);
+    EXPECT_NEAR(a.theta_max[i], b.theta_max[i], 1e-12);
+  }
+  EXPECT_NEAR(a.separation_min, b.separation_min, 1e-12);
+  EXPECT_NEAR(a.separation_max, b.separation_max, 1e-12);
+  EXPECT_NEAR(a.phi_min, b.phi_min, 1e-12);
+  EXPECT_NEAR(a.phi_max, b.phi_max, 1e-12);
+  EXPECT_NEAR(a.gamma_min, b.gamma_min, 1e-12);
+  EXPECT_NEAR(a.gamma_max, b.gamma_max, 1e-12);
+}
+
+TEST(RobotDescription, ShippedDiamondFilesAreTheSeedsTwoParameterSets) {
+  const std::string apriori = kSource + "/robots/diamond/diamond_apriori.yaml";
+  const std::string identified = kSource + "/robots/diamond/diamond_identified.yaml";
+  EXPECT_EQ(ReadRobotKind(apriori), "diamond");
+  ExpectSameDiamond(LoadDiamondDescription(apriori).model, DiamondModel::APriori());
+  ExpectSameDiamond(LoadDiamondDescription(identified).model, DiamondModel::SeedIdentified());
+}
+
+TEST(RobotDescription, DiamondErrorsNameTheKeys) {
+  const std::string path = WriteTemp("diamond_bad.yaml", R"(
+robot: diamond
+radius: -0.2
+alpha_deg: 45
+beta: 0.78
+beta_deg: 45
+joint_offsets: [0]
+theta_min_deg: [0, -90]
+theta_max_deg: [270, 180]
+separation_min_deg: 20
+separation_max_deg: 170
+phi_min: 0
+phi_max_deg: 180
+gamma_max_deg: 85
+)");
+  EXPECT_THAT(LoadError([&] { LoadDiamondDescription(path); }),
+              AllOf(HasSubstr("beta and beta_deg: give one, not both"),
+                    HasSubstr("joint_offsets: need a list of 2 numbers, got 1"),
+                    HasSubstr("gamma_min (or gamma_min_deg): missing")));
+  std::filesystem::remove(path);
+}
+
 TEST(RobotDescription, ExplicitPointsAndPerLegOffsetsAreRead) {
   const std::string path = WriteTemp("explicit.yaml", R"(
 robot: hexapod
