@@ -14,6 +14,8 @@
 #include "apps/kinevis/commands.h"
 #include "hal/common/error.h"
 #include "robots/io/robot_description.h"
+#include "vision/camera/camera_file.h"
+#include "vision/camera/hyperbolic_mirror_camera.h"
 
 namespace kinevis::cli {
 namespace {
@@ -346,6 +348,94 @@ int RunDiamondIk(const ModelOptions& o) {
   return reach.ok() ? kExitOk : kExitJobFailed;
 }
 
+struct ProjectOptions {
+  std::string camera;
+  std::vector<double> point;  // x, y, z in C (m)
+  std::vector<double> pixel;  // u, v (px)
+  bool json = false;
+};
+
+int RunProject(const ProjectOptions& o) {
+  if (o.point.empty() == o.pixel.empty()) {
+    throw hal::ConfigError("project: give exactly one of --point or --pixel");
+  }
+  const std::unique_ptr<vision::CameraModel> camera = vision::OpenCameraModel(o.camera);
+  nlohmann::json out{{"camera", o.camera}, {"model", std::string(camera->Name())},
+                     {"width", camera->width()}, {"height", camera->height()}};
+  vision::ProjectionStatus status;
+  if (!o.point.empty()) {
+    RequireCount(o.point, 3, "--point", "x,y,z (m, camera frame)");
+    const Eigen::Vector3d p(o.point[0], o.point[1], o.point[2]);
+    Eigen::Vector2d pixel;
+    vision::Matrix23d J;
+    status = camera->Project(p, &pixel, &J);
+    out["status"] = std::string(vision::ToString(status));
+    if (status == vision::ProjectionStatus::kOk) {
+      out["pixel"] = {pixel.x(), pixel.y()};
+      out["in_image"] = camera->InImage(pixel);
+      out["jacobian_px_per_m"] = {{J(0, 0), J(0, 1), J(0, 2)}, {J(1, 0), J(1, 1), J(1, 2)}};
+    }
+    if (!o.json) {
+      std::printf("camera: %s (%.*s, %d×%d)\n", o.camera.c_str(),
+                  static_cast<int>(camera->Name().size()), camera->Name().data(), camera->width(),
+                  camera->height());
+      if (status == vision::ProjectionStatus::kOk) {
+        std::printf("pixel: %.6f %.6f (%s the image)\n", pixel.x(), pixel.y(),
+                    camera->InImage(pixel) ? "inside" : "OUTSIDE");
+        std::printf("d pixel / d point (px/m):\n  %12.4f %12.4f %12.4f\n  %12.4f %12.4f %12.4f\n",
+                    J(0, 0), J(0, 1), J(0, 2), J(1, 0), J(1, 1), J(1, 2));
+      } else {
+        std::printf("no image of the point: %.*s\n", static_cast<int>(ToString(status).size()),
+                    ToString(status).data());
+      }
+    }
+  } else {
+    RequireCount(o.pixel, 2, "--pixel", "u,v (px)");
+    vision::Ray ray;
+    status = camera->BackProject(Eigen::Vector2d(o.pixel[0], o.pixel[1]), &ray);
+    out["status"] = std::string(vision::ToString(status));
+    if (status == vision::ProjectionStatus::kOk) {
+      out["ray_origin_m"] = {ray.p_C_O.x(), ray.p_C_O.y(), ray.p_C_O.z()};
+      out["ray_direction"] = {ray.d_C.x(), ray.d_C.y(), ray.d_C.z()};
+    }
+    // The robot-camera's question: where on the floor is this pixel (seed 000's distance map)?
+    const auto* mirror = dynamic_cast<const vision::HyperbolicMirrorCamera*>(camera.get());
+    Eigen::Vector2d ground;
+    const bool on_ground = mirror && mirror->BackProjectToGround(
+                                         Eigen::Vector2d(o.pixel[0], o.pixel[1]), &ground) ==
+                                         vision::ProjectionStatus::kOk;
+    if (on_ground) {
+      out["ground_m"] = {ground.x(), ground.y()};
+      out["ground_distance_m"] = ground.norm();
+    }
+    if (!o.json) {
+      std::printf("camera: %s (%.*s, %d×%d)\n", o.camera.c_str(),
+                  static_cast<int>(camera->Name().size()), camera->Name().data(), camera->width(),
+                  camera->height());
+      if (status == vision::ProjectionStatus::kOk) {
+        std::printf("ray origin (m): %.6f %.6f %.6f\nray direction: %+.8f %+.8f %+.8f\n",
+                    ray.p_C_O.x(), ray.p_C_O.y(), ray.p_C_O.z(), ray.d_C.x(), ray.d_C.y(),
+                    ray.d_C.z());
+        if (camera->IsCentral()) {
+          const double angle = std::acos(std::clamp(ray.d_C.z(), -1.0, 1.0)) / kDeg;
+          std::printf("angle from the camera's z axis: %.4f°\n", angle);
+        }
+        if (on_ground) {
+          std::printf("ground point (x forward, y left): %.4f %.4f m, distance %.4f m\n",
+                      ground.x(), ground.y(), ground.norm());
+        } else if (mirror) {
+          std::printf("the ray does not reach the ground\n");
+        }
+      } else {
+        std::printf("no ray: %.*s\n", static_cast<int>(ToString(status).size()),
+                    ToString(status).data());
+      }
+    }
+  }
+  if (o.json) std::cout << out.dump(2) << "\n";
+  return status == vision::ProjectionStatus::kOk ? kExitOk : kExitJobFailed;
+}
+
 }  // namespace
 
 void AddModelCommands(CLI::App& app, CommandList* commands) {
@@ -421,6 +511,23 @@ void AddModelCommands(CLI::App& app, CommandList* commands) {
       ->delimiter(',');
   robot_option(dik, "robots/diamond/diamond_apriori.yaml");
   commands->push_back({dik, [o] { return RunDiamondIk(*o); }});
+
+  auto p = std::make_shared<ProjectOptions>();
+  std::string builtins;
+  for (const auto& n : vision::BuiltinCameraModelNames()) builtins += " builtin:" + n;
+  CLI::App* project = app.add_subcommand(
+      "project", "Project a 3-D point through a camera model, or back-project a pixel to a ray");
+  project
+      ->add_option("camera", p->camera,
+                   "Camera model file (docs/camera-models.md; a ROS/OpenCV intrinsics YAML is a "
+                   "pinhole-brown model) or one of:" + builtins)
+      ->required();
+  project->add_option("--point", p->point, "x,y,z in the camera frame (m)")->delimiter(',');
+  project->add_option("--pixel", p->pixel, "u,v (px; (0,0) = centre of the top-left pixel)")
+      ->delimiter(',');
+  project->add_flag("--json", p->json, "Print JSON instead of text");
+  project->footer("Exit 1 when the point has no image or the pixel no ray (the reason is printed).");
+  commands->push_back({project, [p] { return RunProject(*p); }});
 }
 
 }  // namespace kinevis::cli

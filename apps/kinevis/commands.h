@@ -25,6 +25,8 @@ void AddWeldRobotCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
 void AddCameraCommands(CLI::App& app, CommandList* commands);
 // `kinevis calibrate ...`: one subcommand per calibration routine (camera, later robots).
 void AddCalibrateCommands(CLI::App& app, CommandList* commands);
+// `kinevis sim world hexapod|diamond ...`: a simulated world as its own process.
+void AddSimWorldCommands(CLI::App& sim, CommandList* commands);
 // `kinevis model hexapod|diamond|weld5 fk|ik ...` and `kinevis project MODEL ...`.
 void AddModelCommands(CLI::App& app, CommandList* commands);
 void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands);

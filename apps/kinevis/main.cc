@@ -40,6 +40,7 @@ int main(int argc, char** argv) {
   AddDriveCommands(app, *sim, &commands);
   AddServoCommands(app, *sim, &commands);
   AddWeldRobotCommands(app, *sim, &commands);
+  AddSimWorldCommands(*sim, &commands);
   AddCameraCommands(app, &commands);
   AddCalibrateCommands(app, &commands);
   AddModelCommands(app, &commands);

@@ -3,6 +3,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <nlohmann/json.hpp>
 
 #include "tests/utilities/subprocess.h"
@@ -102,6 +103,38 @@ TEST(ModelCli, DiamondIkThenFkReturnsTheTaskOnBothParameterSets) {
   const ProcessResult out = Kinevis({"model", "diamond", "ik", "--task", "90,88"});
   EXPECT_EQ(out.exit_code, 1);
   EXPECT_THAT(out.out, HasSubstr("outside the workspace"));
+}
+
+TEST(ModelCli, ProjectThenBackProjectThroughEveryBuiltinCentralCamera) {
+  for (const char* camera : {"builtin:tsai-seed004", "builtin:unified-default",
+                             "builtin:scaramuzza-default"}) {
+    SCOPED_TRACE(camera);
+    const ProcessResult fwd = Kinevis({"project", camera, "--point", "0.05,-0.03,0.5", "--json"});
+    ASSERT_EQ(fwd.exit_code, 0) << fwd.out << fwd.err;
+    const auto pixel = nlohmann::json::parse(fwd.out)["pixel"];
+    const ProcessResult back = Kinevis({"project", camera, "--pixel", Csv(pixel), "--json"});
+    ASSERT_EQ(back.exit_code, 0) << back.err;
+    const std::vector<double> d = nlohmann::json::parse(back.out)["ray_direction"];
+    const double n = std::sqrt(0.05 * 0.05 + 0.03 * 0.03 + 0.25);
+    // std::to_string keeps 6 decimals of the pixel: ~1e-6 px, far below this tolerance.
+    EXPECT_NEAR(d[0], 0.05 / n, 1e-5);
+    EXPECT_NEAR(d[1], -0.03 / n, 1e-5);
+    EXPECT_NEAR(d[2], 0.5 / n, 1e-5);
+  }
+}
+
+TEST(ModelCli, MirrorCameraPixelGivesAGroundPointAndBehindIsAFailedJob) {
+  const ProcessResult r =
+      Kinevis({"project", "builtin:hyperbolic-mirror-4mm", "--pixel", "420,240", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto out = nlohmann::json::parse(r.out);
+  const double distance = out["ground_distance_m"].get<double>();
+  EXPECT_GT(distance, 0.3);
+  EXPECT_LT(distance, 3.0);
+  const ProcessResult behind =
+      Kinevis({"project", "builtin:tsai-seed004", "--point", "0,0,-1"});
+  EXPECT_EQ(behind.exit_code, 1);
+  EXPECT_THAT(behind.out, HasSubstr("behind camera"));
 }
 
 TEST(ModelCli, BadInputIsAUsageErrorThatSaysWhatIsWrong) {

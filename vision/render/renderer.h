@@ -1,0 +1,108 @@
+#pragma once
+
+// Synthetic images through any camera model (issue 5): a Scene says what a ray sees; the Renderer
+// casts one ray per pixel through a CameraModel, supersamples the pixels on edges (anti-aliasing,
+// so sub-pixel edge extraction has something real to find), and applies the optics and sensor
+// effects (blur, vignetting, exposure, noise). Deterministic for a given seed. Grey images only
+// (what the seeds' algorithms use); 8-bit output.
+//
+// Frames: rays are in the camera frame C of the CameraModel (camera_model.h). A Scene holds its
+// geometry in a world frame W and the pose X_WC of the camera (or is built directly in C).
+//
+// Cost model: the back-projected rays of a camera are cached per pixel (Renderer::Prepare), so a
+// frame costs one Scene::Trace per pixel plus s² per edge pixel. The target is a 640×480 frame in
+// ≤ 10 ms on one core (bench/render_bench.cc).
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "vision/camera/camera_model.h"
+
+namespace kinevis::vision::render {
+
+// What a ray hit. radiance in [0, 1] (1 = white at exposure 1); object = a scene-defined id of the
+// surface hit (0 = background), used to find edges and for the ground-truth record; depth = ray
+// parameter t of the hit (m), +inf for the background.
+struct Hit {
+  double radiance = 0.0;
+  int object = 0;
+  double depth = 0.0;
+};
+
+// A scene: pure function of the ray, const, thread-safe.
+class Scene {
+ public:
+  virtual ~Scene() = default;
+  virtual Hit Trace(const Ray& ray_C) const = 0;
+};
+
+// A non-owning 8-bit grey image view (row-major, `stride` bytes per row); hal::Image and cv::Mat
+// both provide one without copying.
+struct ImageView8 {
+  uint8_t* data = nullptr;
+  int width = 0;
+  int height = 0;
+  size_t stride = 0;
+};
+
+struct RenderOptions {
+  // Edge pixels (whose 3×3 neighbourhood sees more than one object, or whose radiance jumps by
+  // more than `edge_radiance_step`) are rendered with s×s samples on a regular sub-pixel grid,
+  // s = supersampling (1 = off). The anti-aliasing error of an edge position is then at most
+  // 1/(2s) px for a straight edge.
+  int supersampling = 4;
+  double edge_radiance_step = 0.05;
+  // Optics and sensor, applied in this order: blur (Gaussian, σ in px, 0 = none), vignetting
+  // (cos⁴-like falloff: gain 1 − vignetting·(r/r_corner)², 0 = none), exposure (gain), noise
+  // (Gaussian, σ in grey levels 0..255, 0 = none), then rounding and clamping to 0..255.
+  double blur_sigma_px = 0.0;
+  double vignetting = 0.0;
+  double exposure = 1.0;
+  double noise_sigma = 0.0;
+  uint64_t seed = 1;  // noise generator seed; the frame index is mixed in (RenderFrame)
+  // Empty when usable, otherwise every bad field and its value.
+  std::string Validate() const;
+};
+
+// Ground truth of a rendered frame: per pixel the object id seen at the pixel centre and the
+// depth (m), kept only when requested.
+struct GroundTruth {
+  int width = 0;
+  int height = 0;
+  std::vector<int> object;    // width * height, row-major
+  std::vector<float> depth;   // width * height, +inf for background
+};
+
+class Renderer {
+ public:
+  // Caches the camera's rays (one BackProject per pixel centre). The camera must outlive the
+  // renderer. Throws std::invalid_argument for bad options.
+  Renderer(const CameraModel& camera, const RenderOptions& options);
+
+  const CameraModel& camera() const { return camera_; }
+  const RenderOptions& options() const { return options_; }
+
+  // Renders frame `frame_index` of `scene` into `out` (must be camera-sized). Noise is seeded by
+  // (options.seed, frame_index): the same inputs give the same bytes. `truth` may be null.
+  // No allocation after the first call at a given size.
+  void Render(const Scene& scene, uint64_t frame_index, const ImageView8& out,
+              GroundTruth* truth = nullptr);
+
+  // Number of pixels supersampled in the last Render() (for tests and the bench).
+  int last_edge_pixels() const { return last_edge_pixels_; }
+
+ private:
+  const CameraModel& camera_;
+  RenderOptions options_;
+  std::vector<Ray> rays_;           // per pixel centre; direction zero where BackProject failed
+  std::vector<float> radiance_;     // scratch
+  std::vector<int> object_;         // scratch
+  std::vector<float> blur_scratch_;
+  int last_edge_pixels_ = 0;
+};
+
+}  // namespace kinevis::vision::render
