@@ -24,15 +24,15 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
 
 struct ModelOptions {
-  std::string robot_file;          // empty: the built-in default description
-  std::vector<double> pose;        // x, y, z (m), roll, pitch, yaw (deg)
-  std::vector<double> legs;        // q_j (m)
-  std::vector<double> actuators;   // s_j (m)
-  std::vector<double> guess_pose;  // as pose
-  std::vector<double> joints;      // θ1, θ2 (deg), pz3 (mm), θ4, θ5 (deg)
-  std::vector<double> tip_mm;      // torch tip in frame 0 (mm)
-  std::vector<double> axis;        // torch axis in frame 0
-  double axis_tolerance_deg = -1;  // < 0: the library's default
+  std::string robot_file;              // empty: the built-in default description
+  std::vector<double> pose;            // x, y, z (m), roll, pitch, yaw (deg)
+  std::vector<double> legs;            // q_j (m)
+  std::vector<double> actuators;       // s_j (m)
+  std::vector<double> guess_pose;      // as pose
+  std::vector<double> joints;          // θ1, θ2 (deg), pz3 (mm), θ4, θ5 (deg)
+  std::vector<double> tip_mm;          // torch tip in frame 0 (mm)
+  std::vector<double> axis;            // torch axis in frame 0
+  double axis_tolerance_deg = -1;      // < 0: the library's default
   std::vector<double> diamond_joints;  // q1, q2 (deg)
   std::vector<double> task;            // φ, γ (deg)
   std::vector<double> direction;       // tool axis in O
@@ -112,10 +112,14 @@ int RunHexapodIk(const ModelOptions& o) {
   if (o.json) {
     nlohmann::json legs = nlohmann::json::array();
     for (int j = 0; j < robots::kHexapodLegs; ++j) {
-      legs.push_back({{"leg", j}, {"length_m", data.q(j)}, {"actuator_m", s(j)},
+      legs.push_back({{"leg", j},
+                      {"length_m", data.q(j)},
+                      {"actuator_m", s(j)},
                       {"u", {data.u_B[j].x(), data.u_B[j].y(), data.u_B[j].z()}}});
     }
-    std::cout << nlohmann::json{{"robot", d.name}, {"pose", PoseJson(X_BP)}, {"legs", legs},
+    std::cout << nlohmann::json{{"robot", d.name},
+                                {"pose", PoseJson(X_BP)},
+                                {"legs", legs},
                                 {"reachable", reach.ok()},
                                 {"problem", reach.Describe(d.model, data.q)},
                                 {"condition_number", cond}}
@@ -147,8 +151,8 @@ int RunHexapodFk(const ModelOptions& o) {
     q = Eigen::Map<const robots::Vector6d>(o.legs.data());
   } else {
     RequireCount(o.actuators, 6, "--actuators", "(actuator readings, m)");
-    q = robots::LegLengthsFromJointPositions(d.model,
-                                             Eigen::Map<const robots::Vector6d>(o.actuators.data()));
+    q = robots::LegLengthsFromJointPositions(
+        d.model, Eigen::Map<const robots::Vector6d>(o.actuators.data()));
   }
   Eigen::Isometry3d guess = d.X_BP_home;
   if (!o.guess_pose.empty()) {
@@ -198,8 +202,11 @@ std::string JointsText(const robots::Vector5d& q) {
 }
 
 nlohmann::json JointsJson(const robots::Vector5d& q) {
-  return {{"theta1_deg", q(0) / kDeg}, {"theta2_deg", q(1) / kDeg}, {"pz3_mm", q(2) * 1e3},
-          {"theta4_deg", q(3) / kDeg}, {"theta5_deg", q(4) / kDeg}};
+  return {{"theta1_deg", q(0) / kDeg},
+          {"theta2_deg", q(1) / kDeg},
+          {"pz3_mm", q(2) * 1e3},
+          {"theta4_deg", q(3) / kDeg},
+          {"theta5_deg", q(4) / kDeg}};
 }
 
 // First joint outside its limits, or -1.
@@ -310,7 +317,7 @@ void PrintDiamondPose(const robots::DiamondModel& m, const robots::DiamondData& 
                 robots::ToString(sing.kind));
   }
   std::printf("%s\n", reach.ok() ? "within the joint limits and the workspace"
-                                  : ("NOT ok: " + reach.Describe()).c_str());
+                                 : ("NOT ok: " + reach.Describe()).c_str());
 }
 
 int RunDiamondFk(const ModelOptions& o) {
@@ -360,8 +367,10 @@ int RunProject(const ProjectOptions& o) {
     throw hal::ConfigError("project: give exactly one of --point or --pixel");
   }
   const std::unique_ptr<vision::CameraModel> camera = vision::OpenCameraModel(o.camera);
-  nlohmann::json out{{"camera", o.camera}, {"model", std::string(camera->Name())},
-                     {"width", camera->width()}, {"height", camera->height()}};
+  nlohmann::json out{{"camera", o.camera},
+                     {"model", std::string(camera->Name())},
+                     {"width", camera->width()},
+                     {"height", camera->height()}};
   vision::ProjectionStatus status;
   if (!o.point.empty()) {
     RequireCount(o.point, 3, "--point", "x,y,z (m, camera frame)");
@@ -401,9 +410,9 @@ int RunProject(const ProjectOptions& o) {
     // The robot-camera's question: where on the floor is this pixel (seed 000's distance map)?
     const auto* mirror = dynamic_cast<const vision::HyperbolicMirrorCamera*>(camera.get());
     Eigen::Vector2d ground;
-    const bool on_ground = mirror && mirror->BackProjectToGround(
-                                         Eigen::Vector2d(o.pixel[0], o.pixel[1]), &ground) ==
-                                         vision::ProjectionStatus::kOk;
+    const bool on_ground =
+        mirror && mirror->BackProjectToGround(Eigen::Vector2d(o.pixel[0], o.pixel[1]), &ground) ==
+                      vision::ProjectionStatus::kOk;
     if (on_ground) {
       out["ground_m"] = {ground.x(), ground.y()};
       out["ground_distance_m"] = ground.norm();
@@ -443,8 +452,9 @@ void AddModelCommands(CLI::App& app, CommandList* commands) {
   CLI::App* model = app.add_subcommand(
       "model", "Forward and inverse kinematics of the robot models, to sanity-check a description");
   model->require_subcommand(1);
-  model->footer("Description file format: docs/robot-description.md. Exit 1 when a pose is "
-                "unreachable or forward kinematics does not converge.");
+  model->footer(
+      "Description file format: docs/robot-description.md. Exit 1 when a pose is "
+      "unreachable or forward kinematics does not converge.");
   const auto robot_option = [o](CLI::App* sub, const char* default_file) {
     sub->add_option("--robot", o->robot_file,
                     std::string("Robot description YAML (default: the built-in model, equal to ") +
@@ -455,8 +465,9 @@ void AddModelCommands(CLI::App& app, CommandList* commands) {
 
   CLI::App* hexapod = model->add_subcommand("hexapod", "Gough–Stewart hexapod (seed 002)");
   hexapod->require_subcommand(1);
-  CLI::App* hik = hexapod->add_subcommand("ik", "Leg lengths, actuator readings and directions "
-                                                "for a platform pose");
+  CLI::App* hik = hexapod->add_subcommand("ik",
+                                          "Leg lengths, actuator readings and directions "
+                                          "for a platform pose");
   hik->add_option("--pose", o->pose, "X_BP as x,y,z (m),roll,pitch,yaw (deg; R = Rz Ry Rx)")
       ->delimiter(',')
       ->required();
@@ -466,8 +477,9 @@ void AddModelCommands(CLI::App& app, CommandList* commands) {
   hfk->add_option("--legs", o->legs, "Leg lengths q1..q6 (m)")->delimiter(',');
   hfk->add_option("--actuators", o->actuators, "Actuator readings s1..s6 (m), q = q0 + s")
       ->delimiter(',');
-  hfk->add_option("--guess", o->guess_pose, "Initial pose x,y,z (m),roll,pitch,yaw (deg); "
-                                            "default: the description's home pose")
+  hfk->add_option("--guess", o->guess_pose,
+                  "Initial pose x,y,z (m),roll,pitch,yaw (deg); "
+                  "default: the description's home pose")
       ->delimiter(',');
   robot_option(hfk, "robots/hexapod/hexapod.yaml");
   commands->push_back({hfk, [o] { return RunHexapodFk(*o); }});
@@ -482,12 +494,15 @@ void AddModelCommands(CLI::App& app, CommandList* commands) {
   commands->push_back({wfk, [o] { return RunWeld5Fk(*o); }});
   CLI::App* wik = weld5->add_subcommand(
       "ik", "Joints for a torch tip and axis (roll about the axis is free); limits enforced");
-  wik->add_option("--tip", o->tip_mm, "Torch tip x,y,z in frame 0 (mm)")->delimiter(',')->required();
+  wik->add_option("--tip", o->tip_mm, "Torch tip x,y,z in frame 0 (mm)")
+      ->delimiter(',')
+      ->required();
   wik->add_option("--axis", o->axis, "Torch axis ux,uy,uz in frame 0 (normalised here)")
       ->delimiter(',')
       ->required();
-  wik->add_option("--guess", o->joints, "Initial joints θ1,θ2,pz3,θ4,θ5 (deg, deg, mm, deg, deg); "
-                                        "default: mid-range")
+  wik->add_option("--guess", o->joints,
+                  "Initial joints θ1,θ2,pz3,θ4,θ5 (deg, deg, mm, deg, deg); "
+                  "default: mid-range")
       ->delimiter(',');
   wik->add_option("--axis-tolerance", o->axis_tolerance_deg,
                   "Accept the axis within this angle (deg; default ~1e-7°). The seed robot's "
@@ -499,7 +514,8 @@ void AddModelCommands(CLI::App& app, CommandList* commands) {
   CLI::App* diamond =
       model->add_subcommand("diamond", "DIAMOND spherical parallelogram robot (seed 001)");
   diamond->require_subcommand(1);
-  CLI::App* dfk = diamond->add_subcommand("fk", "Tool direction (φ, γ) and point for joint readings");
+  CLI::App* dfk =
+      diamond->add_subcommand("fk", "Tool direction (φ, γ) and point for joint readings");
   dfk->add_option("--joints", o->diamond_joints, "q1,q2 (deg)")->delimiter(',')->required();
   robot_option(dfk, "robots/diamond/diamond_apriori.yaml");
   commands->push_back({dfk, [o] { return RunDiamondFk(*o); }});
@@ -520,13 +536,15 @@ void AddModelCommands(CLI::App& app, CommandList* commands) {
   project
       ->add_option("camera", p->camera,
                    "Camera model file (docs/camera-models.md; a ROS/OpenCV intrinsics YAML is a "
-                   "pinhole-brown model) or one of:" + builtins)
+                   "pinhole-brown model) or one of:" +
+                       builtins)
       ->required();
   project->add_option("--point", p->point, "x,y,z in the camera frame (m)")->delimiter(',');
   project->add_option("--pixel", p->pixel, "u,v (px; (0,0) = centre of the top-left pixel)")
       ->delimiter(',');
   project->add_flag("--json", p->json, "Print JSON instead of text");
-  project->footer("Exit 1 when the point has no image or the pixel no ray (the reason is printed).");
+  project->footer(
+      "Exit 1 when the point has no image or the pixel no ray (the reason is printed).");
   commands->push_back({project, [p] { return RunProject(*p); }});
 }
 

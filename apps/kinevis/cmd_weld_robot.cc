@@ -19,9 +19,9 @@
 #include "apps/kinevis/commands.h"
 #include "hal/common/error.h"
 #include "hal/mock/weld_robot_sim.h"
-#include "robots/io/robot_description.h"
 #include "hal/weld/weld_robot_client.h"
 #include "hal/weld/weld_robot_registers.h"
+#include "robots/io/robot_description.h"
 
 namespace kinevis::cli {
 namespace {
@@ -307,7 +307,8 @@ int RunSim(const SimOptions& o) {
       options.joints[j] = {d.model.q_min(j), d.model.q_max(j), d.model.qd_max(j)};
       // Power-on pose: the default where it is within the limits, else the middle of the range.
       double& q0 = options.initial_joints[j];
-      if (q0 < d.model.q_min(j) || q0 > d.model.q_max(j)) q0 = 0.5 * (d.model.q_min(j) + d.model.q_max(j));
+      if (q0 < d.model.q_min(j) || q0 > d.model.q_max(j))
+        q0 = 0.5 * (d.model.q_min(j) + d.model.q_max(j));
     }
   }
   std::unique_ptr<hal::WeldRobotSim> sim;

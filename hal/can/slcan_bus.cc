@@ -434,7 +434,8 @@ std::error_code SlcanBus::RequestStatus() {
 std::error_code SlcanBus::Receive(CanFrame* frame, microseconds timeout) {
   std::unique_lock<std::mutex> lock(mutex_);
   if (ring_size_ == 0 && !link_closed_ && timeout > microseconds::zero()) {
-    rx_cv_.wait_for(lock, std::min(timeout, microseconds(std::chrono::hours(24))), [this] { return ring_size_ > 0 || link_closed_; });
+    rx_cv_.wait_for(lock, std::min(timeout, microseconds(std::chrono::hours(24))),
+                    [this] { return ring_size_ > 0 || link_closed_; });
   }
   if (ring_size_ == 0) return link_closed_ ? Errc::kClosed : Errc::kTimeout;
   const RxEntry& entry = ring_[ring_head_];

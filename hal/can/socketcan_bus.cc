@@ -498,7 +498,8 @@ std::error_code SocketCanBus::Send(const CanFrame& frame) {
 
 std::error_code SocketCanBus::Receive(CanFrame* frame, std::chrono::microseconds timeout) {
   SteadyClock& clock = SteadyClock::Instance();
-  const Duration deadline = clock.Now() + std::clamp(timeout, microseconds::zero(), microseconds(std::chrono::hours(24)));
+  const Duration deadline =
+      clock.Now() + std::clamp(timeout, microseconds::zero(), microseconds(std::chrono::hours(24)));
   while (true) {
     switch (ReadOne(frame)) {
       case ReadOutcome::kFrame:

@@ -92,7 +92,8 @@ class Reader {
       Problem(where + key + " (or " + key + suffix + "): missing");
       return std::nan("");
     }
-    return si ? Scalar(map[key], where + key) : scale * Scalar(map[key + suffix], where + key + suffix);
+    return si ? Scalar(map[key], where + key)
+              : scale * Scalar(map[key + suffix], where + key + suffix);
   }
   double Length(const YAML::Node& map, const std::string& key, const std::string& where) {
     return Quantity(map, key, "_mm", 1e-3, where);
@@ -109,7 +110,8 @@ class Reader {
       return std::vector<double>(n, std::nan(""));
     }
     std::vector<double> out;
-    for (size_t i = 0; i < n; ++i) out.push_back(Scalar(node[i], name + "[" + std::to_string(i) + "]"));
+    for (size_t i = 0; i < n; ++i)
+      out.push_back(Scalar(node[i], name + "[" + std::to_string(i) + "]"));
     return out;
   }
 
@@ -180,7 +182,8 @@ std::array<Eigen::Vector3d, kHexapodLegs> ReadSixPoints(Reader& r, const std::st
   return points;
 }
 
-// A pose as {position: [x, y, z] (m), rpy_deg: [roll, pitch, yaw]} (R = Rz(yaw) Ry(pitch) Rx(roll)).
+// A pose as {position: [x, y, z] (m), rpy_deg: [roll, pitch, yaw]} (R = Rz(yaw) Ry(pitch)
+// Rx(roll)).
 Eigen::Isometry3d ReadPose(Reader& r, const YAML::Node& node, const std::string& name) {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
   if (!node.IsMap()) {
@@ -287,12 +290,14 @@ Weld5Description LoadWeld5Description(const std::string& path) {
       r.Problem(w + "min < max does not hold (" + Text(d.model.q_min(i)) + " .. " +
                 Text(d.model.q_max(i)) + ")");
     }
-    if (!(d.model.qd_max(i) > 0)) r.Problem(w + "speed: must be > 0, got " + Text(d.model.qd_max(i)));
+    if (!(d.model.qd_max(i) > 0))
+      r.Problem(w + "speed: must be > 0, got " + Text(d.model.qd_max(i)));
   }
   const YAML::Node torch = r.root()["torch"];
   if (torch && torch.IsMap()) {
-    d.model.X_5T = Weld5TorchTransform(r.Length(torch, "px5", "torch."), r.Length(torch, "pz5", "torch."),
-                                       r.Angle(torch, "beta", "torch."));
+    d.model.X_5T =
+        Weld5TorchTransform(r.Length(torch, "px5", "torch."), r.Length(torch, "pz5", "torch."),
+                            r.Angle(torch, "beta", "torch."));
   } else {
     r.Problem("torch: expected {px5, pz5, beta} (tip and tilt in link frame 5)");
   }
@@ -315,10 +320,12 @@ DiamondDescription LoadDiamondDescription(const std::string& path) {
     const bool si = static_cast<bool>(root[key]);
     const bool deg = static_cast<bool>(root[key + "_deg"]);
     if (si == deg) {
-      r.Problem(key + (si ? " and " + key + "_deg: give one, not both" : " (or " + key + "_deg): missing"));
+      r.Problem(key + (si ? " and " + key + "_deg: give one, not both"
+                          : " (or " + key + "_deg): missing"));
       return;
     }
-    const auto v = r.Numbers(root[si ? key : key + "_deg"], kDiamondJoints, si ? key : key + "_deg");
+    const auto v =
+        r.Numbers(root[si ? key : key + "_deg"], kDiamondJoints, si ? key : key + "_deg");
     for (int i = 0; i < kDiamondJoints; ++i) (*out)[i] = si ? v[i] : v[i] * kDeg;
   };
   pair("joint_offsets", &m.joint_offsets);

@@ -2,7 +2,8 @@
 
 // Robot description files: the nominal (CAD) parameters of each robot as YAML, read into the
 // models of robots/. The format is documented in docs/robot-description.md; the shipped files are
-// robots/hexapod/hexapod.yaml, robots/weld5/weld5.yaml and robots/diamond/diamond_{apriori,identified}.yaml.
+// robots/hexapod/hexapod.yaml, robots/weld5/weld5.yaml and
+// robots/diamond/diamond_{apriori,identified}.yaml.
 //
 // This folder is the one part of robots/ that reads files (yaml-cpp); the models themselves stay
 // Eigen-only. Values are SI unless the key names its unit (`alpha_deg`, `d_mm`): the reader

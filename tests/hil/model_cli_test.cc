@@ -33,7 +33,8 @@ TEST(ModelCli, HexapodIkThenFkReturnsThePose) {
   const auto in = nlohmann::json::parse(ik.out);
   EXPECT_TRUE(in["reachable"].get<bool>());
   std::string legs;
-  for (const auto& leg : in["legs"]) legs += (legs.empty() ? "" : ",") + std::to_string(leg["length_m"].get<double>());
+  for (const auto& leg : in["legs"])
+    legs += (legs.empty() ? "" : ",") + std::to_string(leg["length_m"].get<double>());
   const ProcessResult fk = Kinevis({"model", "hexapod", "fk", "--legs", legs, "--json"});
   ASSERT_EQ(fk.exit_code, 0) << fk.err;
   const auto out = nlohmann::json::parse(fk.out);
@@ -73,14 +74,16 @@ TEST(ModelCli, Weld5FkThenIkReturnsTheTorchPose) {
                              std::to_string(j["pz3_mm"].get<double>()) + "," +
                              std::to_string(j["theta4_deg"].get<double>()) + "," +
                              std::to_string(j["theta5_deg"].get<double>());
-  const auto again = nlohmann::json::parse(Kinevis({"model", "weld5", "fk", "--joints", joints, "--json"}).out);
+  const auto again =
+      nlohmann::json::parse(Kinevis({"model", "weld5", "fk", "--joints", joints, "--json"}).out);
   for (int i = 0; i < 3; ++i) {
     EXPECT_NEAR(again["tip_mm"][i].get<double>(), pose["tip_mm"][i].get<double>(), 0.01);
   }
 }
 
 TEST(ModelCli, Weld5UnreachableTargetIsAFailedJob) {
-  const ProcessResult ik = Kinevis({"model", "weld5", "ik", "--tip", "3000,0,0", "--axis", "0,0,-1"});
+  const ProcessResult ik =
+      Kinevis({"model", "weld5", "ik", "--tip", "3000,0,0", "--axis", "0,0,-1"});
   EXPECT_EQ(ik.exit_code, 1);
   EXPECT_THAT(ik.out, HasSubstr("not reachable"));
 }
@@ -106,8 +109,8 @@ TEST(ModelCli, DiamondIkThenFkReturnsTheTaskOnBothParameterSets) {
 }
 
 TEST(ModelCli, ProjectThenBackProjectThroughEveryBuiltinCentralCamera) {
-  for (const char* camera : {"builtin:tsai-seed004", "builtin:unified-default",
-                             "builtin:scaramuzza-default"}) {
+  for (const char* camera :
+       {"builtin:tsai-seed004", "builtin:unified-default", "builtin:scaramuzza-default"}) {
     SCOPED_TRACE(camera);
     const ProcessResult fwd = Kinevis({"project", camera, "--point", "0.05,-0.03,0.5", "--json"});
     ASSERT_EQ(fwd.exit_code, 0) << fwd.out << fwd.err;
@@ -131,8 +134,7 @@ TEST(ModelCli, MirrorCameraPixelGivesAGroundPointAndBehindIsAFailedJob) {
   const double distance = out["ground_distance_m"].get<double>();
   EXPECT_GT(distance, 0.3);
   EXPECT_LT(distance, 3.0);
-  const ProcessResult behind =
-      Kinevis({"project", "builtin:tsai-seed004", "--point", "0,0,-1"});
+  const ProcessResult behind = Kinevis({"project", "builtin:tsai-seed004", "--point", "0,0,-1"});
   EXPECT_EQ(behind.exit_code, 1);
   EXPECT_THAT(behind.out, HasSubstr("behind camera"));
 }
@@ -151,8 +153,9 @@ TEST(ModelCli, BadInputIsAUsageErrorThatSaysWhatIsWrong) {
 }
 
 TEST(ModelCli, DescriptionFilesLoadThroughTheCli) {
-  const ProcessResult r = Kinevis({"model", "hexapod", "ik", "--pose", "0,0,0.4,0,0,0", "--robot",
-                                   std::string(KINEVIS_SOURCE_DIR) + "/robots/hexapod/hexapod.yaml"});
+  const ProcessResult r =
+      Kinevis({"model", "hexapod", "ik", "--pose", "0,0,0.4,0,0,0", "--robot",
+               std::string(KINEVIS_SOURCE_DIR) + "/robots/hexapod/hexapod.yaml"});
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("robot: kinevis-default-hexapod\n"));
 }

@@ -73,11 +73,12 @@ TEST(WeldRobotCliTest, SimEnforcesTheLimitsOfARobotDescription) {
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   const std::string from = "limits: {min_deg: -170, max_deg: 170, speed_deg_s: 90}";
   ASSERT_NE(text.find(from), std::string::npos);
-  text.replace(text.find(from), from.size(), "limits: {min_deg: -30, max_deg: 30, speed_deg_s: 90}");
+  text.replace(text.find(from), from.size(),
+               "limits: {min_deg: -30, max_deg: 30, speed_deg_s: 90}");
   const std::string robot = WriteFile("narrow.yaml", text);
   SimProcess sim({"--robot", robot});
-  ProcessResult inside =
-      Kinevis({"weld-robot", sim.backend(), "move", "--joints", "20,0,50,0,0", "--duration", "0.5"});
+  ProcessResult inside = Kinevis(
+      {"weld-robot", sim.backend(), "move", "--joints", "20,0,50,0,0", "--duration", "0.5"});
   EXPECT_EQ(inside.exit_code, 0) << inside.err;
   ProcessResult outside =
       Kinevis({"weld-robot", sim.backend(), "move", "--joints", "40,0,50,0,0", "--duration", "1"});

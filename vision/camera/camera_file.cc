@@ -18,7 +18,6 @@
 namespace kinevis::vision {
 namespace {
 
-
 // Collects every problem of one file; throws them together.
 class Fields {
  public:
@@ -93,7 +92,8 @@ class Fields {
               " numbers");
       return out;
     }
-    for (size_t i = 0; i < n.size(); ++i) out[i] = Scalar(n[i], key + "[" + std::to_string(i) + "]");
+    for (size_t i = 0; i < n.size(); ++i)
+      out[i] = Scalar(n[i], key + "[" + std::to_string(i) + "]");
     return out;
   }
   // Keys in the file that no reader asked for: almost always a typo.
@@ -275,8 +275,9 @@ std::unique_ptr<CameraModel> LoadCameraModel(const std::string& path) {
   }
   if (!root["model"] || !root["model"].IsScalar()) {
     throw std::invalid_argument(
-        path + ": model: missing (pinhole-brown, tsai, unified, scaramuzza, hyperbolic-mirror), "
-               "and no camera_matrix key of a ROS/OpenCV intrinsics file");
+        path +
+        ": model: missing (pinhole-brown, tsai, unified, scaramuzza, hyperbolic-mirror), "
+        "and no camera_matrix key of a ROS/OpenCV intrinsics file");
   }
   const std::string model = root["model"].Scalar();
   Fields f(path, root);

@@ -31,10 +31,10 @@ using Matrix32d = Eigen::Matrix<double, 3, 2>;
 // Why a projection or back-projection has no result. kOk is the only success.
 enum class ProjectionStatus {
   kOk,
-  kBehindCamera,      // the point is not in front of the optics (z <= 0, or behind the mirror)
-  kOutsideDomain,     // outside where the model is valid (beyond the mirror rim, beyond the
-                      // distortion's monotonic range, outside the polynomial's fitted range)
-  kNoConvergence,     // an iterative inverse did not converge to its tolerance
+  kBehindCamera,   // the point is not in front of the optics (z <= 0, or behind the mirror)
+  kOutsideDomain,  // outside where the model is valid (beyond the mirror rim, beyond the
+                   // distortion's monotonic range, outside the polynomial's fitted range)
+  kNoConvergence,  // an iterative inverse did not converge to its tolerance
 };
 
 // "ok", "behind camera", "outside model domain", "no convergence".

@@ -157,10 +157,11 @@ leg_length: {min: abc, max: 0.6}
 joint_offsets: 0.35
 )");
   const std::string message = LoadError([&] { LoadHexapodDescription(path); });
-  EXPECT_THAT(message, AllOf(HasSubstr(path), HasSubstr("base_points[1]: need a list of 3 numbers, got 2"),
-                             HasSubstr("platform_points_polar.angles_deg: need a list of 6 numbers"),
-                             HasSubstr("leg_radius and leg_radius_mm: give one, not both"),
-                             HasSubstr("leg_length.min: expected a finite number, got 'abc'")));
+  EXPECT_THAT(message,
+              AllOf(HasSubstr(path), HasSubstr("base_points[1]: need a list of 3 numbers, got 2"),
+                    HasSubstr("platform_points_polar.angles_deg: need a list of 6 numbers"),
+                    HasSubstr("leg_radius and leg_radius_mm: give one, not both"),
+                    HasSubstr("leg_length.min: expected a finite number, got 'abc'")));
   std::filesystem::remove(path);
 }
 
@@ -191,10 +192,11 @@ joints:
 torch: {px5_mm: 25, pz5_mm: 250, beta_deg: 0}
 )");
   const std::string message = LoadError([&] { LoadWeld5Description(path); });
-  EXPECT_THAT(message, AllOf(HasSubstr("joints[0].limits.min < max does not hold"),
-                             HasSubstr("joints[1].type: expected revolute or prismatic, got 'hinge'"),
-                             HasSubstr("joints[2].limits.speed: must be > 0"),
-                             HasSubstr("joints[3].theta_offset (or theta_offset_deg): missing")));
+  EXPECT_THAT(message,
+              AllOf(HasSubstr("joints[0].limits.min < max does not hold"),
+                    HasSubstr("joints[1].type: expected revolute or prismatic, got 'hinge'"),
+                    HasSubstr("joints[2].limits.speed: must be > 0"),
+                    HasSubstr("joints[3].theta_offset (or theta_offset_deg): missing")));
   std::filesystem::remove(path);
 }
 

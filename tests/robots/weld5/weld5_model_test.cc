@@ -220,8 +220,8 @@ TEST(Weld5Ik, RoundTripsOnRandomReachableConfigurations) {
     for (int i = 0; i < kWeld5Joints; ++i) guess(i) += noise(rng);
     const Weld5IkResult r = Weld5InverseKinematics(m, data.p_0T, data.u_0T, guess);
     ASSERT_TRUE(r.converged()) << "trial " << trial << ": " << ToString(r.status) << " pos "
-                               << r.position_error << " axis " << r.axis_error
-                               << " q_true " << q_true.transpose() << " guess " << guess.transpose();
+                               << r.position_error << " axis " << r.axis_error << " q_true "
+                               << q_true.transpose() << " guess " << guess.transpose();
     ++converged;
     Weld5ForwardKinematics(m, r.q, &check);
     EXPECT_LT((check.p_0T - data.p_0T).norm(), 1e-8);

@@ -137,8 +137,8 @@ apex_to_ground_mm: 680
   const auto* a = dynamic_cast<const HyperbolicMirrorCamera*>(loaded.get());
   const auto* b = dynamic_cast<const HyperbolicMirrorCamera*>(builtin.get());
   ASSERT_TRUE(a && b);
-  for (const Eigen::Vector2d& pixel : {Eigen::Vector2d(420, 240), Eigen::Vector2d(300, 100),
-                                      Eigen::Vector2d(200, 330)}) {
+  for (const Eigen::Vector2d& pixel :
+       {Eigen::Vector2d(420, 240), Eigen::Vector2d(300, 100), Eigen::Vector2d(200, 330)}) {
     Eigen::Vector2d ga, gb;
     ASSERT_EQ(a->BackProjectToGround(pixel, &ga), ProjectionStatus::kOk);
     ASSERT_EQ(b->BackProjectToGround(pixel, &gb), ProjectionStatus::kOk);
@@ -180,11 +180,12 @@ v0: 239.5
 distortion: [0, 0, 0, 0, 0]
 focal: 3
 )");
-  EXPECT_THAT(Error([&] { LoadCameraModel(path); }),
-              AllOf(HasSubstr(path), HasSubstr("width: expected an integer, got '640.5'"),
-                    HasSubstr("height: missing"), HasSubstr("xi: expected a finite number, got 'abc'"),
-                    HasSubstr("distortion: need a list of up to 4 numbers"),
-                    HasSubstr("focal: unknown key"), HasSubstr("gamma1_px: unknown key")));
+  EXPECT_THAT(
+      Error([&] { LoadCameraModel(path); }),
+      AllOf(HasSubstr(path), HasSubstr("width: expected an integer, got '640.5'"),
+            HasSubstr("height: missing"), HasSubstr("xi: expected a finite number, got 'abc'"),
+            HasSubstr("distortion: need a list of up to 4 numbers"),
+            HasSubstr("focal: unknown key"), HasSubstr("gamma1_px: unknown key")));
   std::filesystem::remove(path);
 }
 
@@ -199,7 +200,8 @@ cy: 585
 pixel_pitch_x_mm: 0.0044
 pixel_pitch_y_mm: 0.0044
 )");
-  EXPECT_THAT(Error([&] { LoadCameraModel(path); }), AllOf(HasSubstr(path), HasSubstr("focal_length_mm")));
+  EXPECT_THAT(Error([&] { LoadCameraModel(path); }),
+              AllOf(HasSubstr(path), HasSubstr("focal_length_mm")));
   std::filesystem::remove(path);
 }
 
@@ -208,8 +210,9 @@ TEST(CameraFile, UnknownModelMissingFileAndBuiltinNames) {
   EXPECT_THAT(Error([&] { LoadCameraModel(path); }), HasSubstr("model: unknown 'kannala-brandt'"));
   EXPECT_THAT(Error([] { LoadCameraModel("/nonexistent/camera.yaml"); }),
               HasSubstr("/nonexistent/camera.yaml: cannot open"));
-  EXPECT_THAT(Error([] { OpenCameraModel("builtin:nope"); }),
-              AllOf(HasSubstr("unknown"), HasSubstr("tsai-seed004"), HasSubstr("hyperbolic-mirror-4mm")));
+  EXPECT_THAT(
+      Error([] { OpenCameraModel("builtin:nope"); }),
+      AllOf(HasSubstr("unknown"), HasSubstr("tsai-seed004"), HasSubstr("hyperbolic-mirror-4mm")));
   for (const std::string& name : BuiltinCameraModelNames()) {
     EXPECT_TRUE(OpenCameraModel("builtin:" + name)->Validate().empty()) << name;
   }

@@ -69,11 +69,14 @@ TEST(Primitives, RandomHitsLieOnTheSurfaces) {
 }
 
 TEST(Primitives, DiscIsBoundedAndCylinderIsFinite) {
-  EXPECT_NEAR(IntersectDisc(MakeRay({0, 0, 0}, {0.05, 0, 1}), {0, 0, 1}, {0, 0, 1}, 0.1), std::hypot(0.05, 1.0), 1e-12);
+  EXPECT_NEAR(IntersectDisc(MakeRay({0, 0, 0}, {0.05, 0, 1}), {0, 0, 1}, {0, 0, 1}, 0.1),
+              std::hypot(0.05, 1.0), 1e-12);
   EXPECT_EQ(IntersectDisc(MakeRay({0, 0, 0}, {0.2, 0, 1}), {0, 0, 1}, {0, 0, 1}, 0.1), kNoHit);
   // Aimed past the end of a short cylinder.
-  EXPECT_EQ(IntersectCylinder(MakeRay({0, 0, 0}, {0, 0, 1}), {0.5, -0.1, 1}, {0.5, 0.1, 1}, 0.05), kNoHit);
-  EXPECT_EQ(IntersectCylinder(MakeRay({0, 0, 0}, {0, 0.5, 1}), {0, -0.1, 1}, {0, 0.1, 1}, 0.05), kNoHit);
+  EXPECT_EQ(IntersectCylinder(MakeRay({0, 0, 0}, {0, 0, 1}), {0.5, -0.1, 1}, {0.5, 0.1, 1}, 0.05),
+            kNoHit);
+  EXPECT_EQ(IntersectCylinder(MakeRay({0, 0, 0}, {0, 0.5, 1}), {0, -0.1, 1}, {0, 0.1, 1}, 0.05),
+            kNoHit);
 }
 
 }  // namespace
