@@ -7,6 +7,8 @@
 //   file:PATH[,loop][,fps=F][,format=PIX][,latest][,intrinsics=ID]
 //   images:GLOB[,loop][,fps=F][,format=PIX][,latest][,intrinsics=ID]
 //   sim:NAME[,fps=F][,intrinsics=ID]
+//   net:HOST:PORT[,timeout_ms=N][,intrinsics=ID]   (frames from a kinevis FrameServer over TCP;
+//                                                  parsed by ParseNetCameraSource, net_camera.h)
 //
 // PIX is mono8, bgr8, rgb8 or mono16. Paths and globs cannot contain ','.
 // The parser throws hal::ConfigError naming the source string, every bad field and its value.
