@@ -1,0 +1,664 @@
+#include "sim/hexapod_world.h"
+
+#include <spdlog/spdlog.h>
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cassert>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <random>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+
+#include "hal/camera/sim_camera.h"
+#include "hal/can/virtual_can_bus.h"
+#include "hal/common/backend_spec.h"
+#include "hal/common/error.h"
+#include "hal/mock/canopen_drive_sim.h"
+#include "hal/mock/slcan_adapter_sim.h"
+#include "hal/serial/pty_pair.h"
+#include "robots/io/robot_description.h"
+#include "vision/camera/camera_file.h"
+
+namespace kinevis::sim {
+
+using robots::kHexapodLegs;
+
+namespace {
+
+constexpr int kSlcanSerialBaud = 115200;  // a pty carries any rate; the host must name one
+
+hal::Duration Seconds(double s) {
+  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
+}
+
+}  // namespace
+
+namespace internal {
+
+// ---- Problems
+
+void Problems::Add(const std::string& text) { message_ += (message_.empty() ? "" : "; ") + text; }
+
+void Problems::Positive(const std::string& field, double value) {
+  if (!(std::isfinite(value) && value > 0)) Add(field + ": must be > 0, got " + Num(value));
+}
+
+void Problems::NonNegative(const std::string& field, double value) {
+  if (!(std::isfinite(value) && value >= 0)) Add(field + ": must be >= 0, got " + Num(value));
+}
+
+std::string Problems::Message() const { return message_; }
+
+std::string Num(double value) {
+  for (int digits = 6; digits < 17; ++digits) {
+    std::ostringstream o;
+    o.precision(digits);
+    o << value;
+    if (!std::isfinite(value) || std::strtod(o.str().c_str(), nullptr) == value) return o.str();
+  }
+  std::ostringstream o;
+  o.precision(17);
+  o << value;
+  return o.str();
+}
+
+void ValidateCameras(const std::vector<WorldCameraConfig>& cameras, Problems* p) {
+  std::set<std::string> names;
+  for (size_t i = 0; i < cameras.size(); ++i) {
+    const WorldCameraConfig& c = cameras[i];
+    const std::string key = "cameras[" + std::to_string(i) + "]";
+    if (c.name.empty()) {
+      p->Add(key + ".name: must not be empty");
+    } else if (!names.insert(c.name).second) {
+      p->Add(key + ".name: \"" + c.name + "\" appears twice");
+    }
+    if (c.model.empty()) p->Add(key + ".model: must not be empty");
+    p->Positive(key + ".fps", c.fps);
+    if (!c.X_WC.matrix().allFinite()) p->Add(key + ": pose not finite");
+    const std::string render = c.render.Validate();
+    if (!render.empty()) p->Add(key + ".render: " + render);
+  }
+}
+
+// ---- WorldConfigReader
+
+struct WorldConfigReader::Impl {
+  std::string path;
+  YAML::Node root;
+  Problems problems;
+
+  // The node at a dotted key; an invalid (undefined) node when it is not there. Read-only walk:
+  // a const Node's operator[] does not insert.
+  YAML::Node Find(const std::string& key) const {
+    YAML::Node cur = YAML::Clone(root);
+    if (key.empty()) return cur;
+    size_t begin = 0;
+    while (true) {
+      const size_t dot = key.find('.', begin);
+      const std::string part = key.substr(begin, dot == std::string::npos ? dot : dot - begin);
+      if (!cur.IsMap()) return YAML::Node(YAML::NodeType::Undefined);
+      const YAML::Node& c = cur;
+      const YAML::Node next = c[part];
+      if (!next) return YAML::Node(YAML::NodeType::Undefined);
+      cur.reset(next);
+      if (dot == std::string::npos) return cur;
+      begin = dot + 1;
+    }
+  }
+
+  double ToNumber(const YAML::Node& n, const std::string& key) {
+    if (n.IsScalar()) {
+      try {
+        const double v = n.as<double>();
+        if (std::isfinite(v)) return v;
+      } catch (const YAML::Exception&) {
+      }
+      problems.Add(key + ": expected a finite number, got '" + n.Scalar() + "'");
+    } else {
+      problems.Add(key + ": expected a number");
+    }
+    return std::nan("");
+  }
+
+  Eigen::Isometry3d ToPose(const YAML::Node& n, const std::string& key) {
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    if (!n.IsMap()) {
+      problems.Add(key + ": expected {position: [x, y, z], rpy_deg: [roll, pitch, yaw]}");
+      return X;
+    }
+    std::vector<double> position{0, 0, 0}, rpy{0, 0, 0};
+    if (n["position"]) position = ToNumbers(n["position"], key + ".position", 3);
+    if (n["rpy_deg"]) rpy = ToNumbers(n["rpy_deg"], key + ".rpy_deg", 3);
+    for (const auto& kv : n) {
+      const std::string k = kv.first.Scalar();
+      if (k != "position" && k != "rpy_deg") problems.Add(key + "." + k + ": unknown key");
+    }
+    constexpr double kDeg = 3.14159265358979323846 / 180.0;
+    X.linear() = (Eigen::AngleAxisd(rpy[2] * kDeg, Eigen::Vector3d::UnitZ()) *
+                  Eigen::AngleAxisd(rpy[1] * kDeg, Eigen::Vector3d::UnitY()) *
+                  Eigen::AngleAxisd(rpy[0] * kDeg, Eigen::Vector3d::UnitX()))
+                     .toRotationMatrix();
+    X.translation() = Eigen::Vector3d(position[0], position[1], position[2]);
+    return X;
+  }
+
+  std::vector<double> ToNumbers(const YAML::Node& n, const std::string& key, size_t count,
+                                bool scalar_ok = false) {
+    std::vector<double> out(count, std::nan(""));
+    if (scalar_ok && n.IsScalar()) {
+      const double v = ToNumber(n, key);
+      std::fill(out.begin(), out.end(), v);
+      return out;
+    }
+    if (!n.IsSequence() || n.size() != count) {
+      problems.Add(key + ": need a list of " + std::to_string(count) + " numbers" +
+                   (scalar_ok ? " (or one number)" : ""));
+      return out;
+    }
+    for (size_t i = 0; i < count; ++i) out[i] = ToNumber(n[i], key + "[" + std::to_string(i) + "]");
+    return out;
+  }
+
+  std::string Resolve(const std::string& file) const {
+    if (file.empty() || file[0] == '/') return file;
+    const size_t slash = path.rfind('/');
+    return slash == std::string::npos ? file : path.substr(0, slash + 1) + file;
+  }
+};
+
+WorldConfigReader::WorldConfigReader(const std::string& path, const std::string& kind)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->path = path;
+  try {
+    impl_->root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw std::invalid_argument(path + ": cannot open the world config");
+  } catch (const YAML::Exception& e) {
+    throw std::invalid_argument(path + ": not valid YAML: " + e.what());
+  }
+  if (!impl_->root.IsMap()) throw std::invalid_argument(path + ": expected a YAML mapping");
+  const std::string world = Text("world", kind);
+  if (world != kind) {
+    throw std::invalid_argument(path + ": world: expected \"" + kind + "\", got \"" + world + "\"");
+  }
+}
+
+WorldConfigReader::~WorldConfigReader() = default;
+
+bool WorldConfigReader::Has(const std::string& key) const {
+  return static_cast<bool>(impl_->Find(key));
+}
+
+double WorldConfigReader::Number(const std::string& key, double fallback) {
+  const YAML::Node n = impl_->Find(key);
+  return n ? impl_->ToNumber(n, key) : fallback;
+}
+
+long long WorldConfigReader::Integer(const std::string& key, long long fallback) {
+  const YAML::Node n = impl_->Find(key);
+  if (!n) return fallback;
+  try {
+    if (n.IsScalar()) return n.as<long long>();
+  } catch (const YAML::Exception&) {
+  }
+  impl_->problems.Add(key + ": expected an integer, got '" +
+                      (n.IsScalar() ? n.Scalar() : "a list") + "'");
+  return fallback;
+}
+
+std::string WorldConfigReader::Text(const std::string& key, const std::string& fallback) {
+  const YAML::Node n = impl_->Find(key);
+  if (!n) return fallback;
+  if (!n.IsScalar()) {
+    impl_->problems.Add(key + ": expected a string");
+    return fallback;
+  }
+  return n.Scalar();
+}
+
+std::vector<double> WorldConfigReader::Numbers(const std::string& key, size_t n,
+                                               std::vector<double> fallback, bool scalar_ok) {
+  const YAML::Node node = impl_->Find(key);
+  return node ? impl_->ToNumbers(node, key, n, scalar_ok) : fallback;
+}
+
+Eigen::Isometry3d WorldConfigReader::Pose(const std::string& key,
+                                          const Eigen::Isometry3d& fallback) {
+  const YAML::Node n = impl_->Find(key);
+  return n ? impl_->ToPose(n, key) : fallback;
+}
+
+std::string WorldConfigReader::Path(const std::string& key) {
+  return impl_->Resolve(Text(key, ""));
+}
+
+std::vector<WorldCameraConfig> WorldConfigReader::Cameras(
+    const std::vector<WorldCameraConfig>& fallback) {
+  const YAML::Node list = impl_->Find("cameras");
+  if (!list) return fallback;
+  std::vector<WorldCameraConfig> cameras;
+  if (!list.IsSequence()) {
+    impl_->problems.Add("cameras: expected a list");
+    return cameras;
+  }
+  for (size_t i = 0; i < list.size(); ++i) {
+    const std::string key = "cameras[" + std::to_string(i) + "]";
+    const YAML::Node n = list[i];
+    if (!n.IsMap()) {
+      impl_->problems.Add(key + ": expected a mapping");
+      continue;
+    }
+    WorldCameraConfig c;
+    if (n["name"]) c.name = n["name"].Scalar();
+    if (n["model"]) {
+      c.model = n["model"].Scalar();
+      if (c.model.rfind("builtin:", 0) != 0) c.model = impl_->Resolve(c.model);
+    }
+    if (n["fps"]) c.fps = impl_->ToNumber(n["fps"], key + ".fps");
+    if (n["pose"]) c.X_WC = impl_->ToPose(n["pose"], key + ".pose");
+    if (const YAML::Node r = n["render"]) {
+      const auto number = [&](const char* k, double* v) {
+        if (r[k]) *v = impl_->ToNumber(r[k], key + ".render." + k);
+      };
+      double supersampling = c.render.supersampling;
+      double seed = static_cast<double>(c.render.seed);
+      number("supersampling", &supersampling);
+      number("blur_sigma_px", &c.render.blur_sigma_px);
+      number("vignetting", &c.render.vignetting);
+      number("exposure", &c.render.exposure);
+      number("noise_sigma", &c.render.noise_sigma);
+      number("seed", &seed);
+      c.render.supersampling = static_cast<int>(supersampling);
+      c.render.seed = static_cast<uint64_t>(seed);
+    }
+    for (const auto& kv : n) {
+      const std::string k = kv.first.Scalar();
+      if (k != "name" && k != "model" && k != "fps" && k != "pose" && k != "render") {
+        impl_->problems.Add(key + "." + k + ": unknown key");
+      }
+    }
+    cameras.push_back(c);
+  }
+  return cameras;
+}
+
+void WorldConfigReader::CheckKeys(const std::string& key, const std::vector<std::string>& known) {
+  const YAML::Node n = impl_->Find(key);
+  if (!n) return;
+  if (!n.IsMap()) {
+    impl_->problems.Add(key + ": expected a mapping");
+    return;
+  }
+  for (const auto& kv : n) {
+    const std::string k = kv.first.Scalar();
+    if (std::find(known.begin(), known.end(), k) == known.end()) {
+      impl_->problems.Add((key.empty() ? "" : key + ".") + k + ": unknown key");
+    }
+  }
+}
+
+void WorldConfigReader::Problem(const std::string& text) { impl_->problems.Add(text); }
+
+void WorldConfigReader::ThrowIfProblems() const {
+  const std::string message = impl_->problems.Message();
+  if (!message.empty()) throw std::invalid_argument(impl_->path + ": " + message);
+}
+
+const std::string& WorldConfigReader::path() const { return impl_->path; }
+
+}  // namespace internal
+
+std::string HexapodWorldConfig::Validate() const {
+  internal::Problems p;
+  const std::string model = nominal.Validate();
+  if (!model.empty()) p.Add("robot (" + robot_description + "): " + model);
+  if (!X_BP_home.matrix().allFinite()) p.Add("home pose: not finite");
+  p.NonNegative("perturbation.base_point_sigma_mm", base_point_sigma_mm);
+  p.NonNegative("perturbation.platform_point_sigma_mm", platform_point_sigma_mm);
+  p.NonNegative("perturbation.joint_offset_sigma_mm", joint_offset_sigma_mm);
+  std::set<int> seen;
+  for (int j = 0; j < kHexapodLegs; ++j) {
+    const std::string key = "drives.nodes[" + std::to_string(j) + "]";
+    if (nodes[j] < 1 || nodes[j] > 127) {
+      p.Add(key + ": must be in 1..127, got " + std::to_string(nodes[j]));
+    } else if (!seen.insert(nodes[j]).second) {
+      p.Add(key + ": " + std::to_string(nodes[j]) + " appears twice");
+    }
+  }
+  p.Positive("drives.counts_per_metre", counts_per_metre);
+  p.Positive("drives.max_velocity", max_velocity);
+  p.Positive("drives.max_acceleration", max_acceleration);
+  p.Positive("drives.following_error_window", following_error_window);
+  if (std::isfinite(counts_per_metre) && counts_per_metre > 0 &&
+      std::isfinite(nominal.leg_length_max) &&
+      std::abs(nominal.leg_length_max) * counts_per_metre > 2e9) {
+    p.Add("drives.counts_per_metre: " + internal::Num(counts_per_metre) +
+          " overflows the drives' 32-bit positions over the stroke");
+  }
+  if (network.empty()) p.Add("can.network: must not be empty");
+  if (hal::SlcanBitrateCode(can_bitrate) < 0) {
+    p.Add("can.bitrate: " + std::to_string(can_bitrate) +
+          " is not one an slcan adapter knows (10000 ... 1000000)");
+  }
+  p.Positive("step_period_ms", step_period_s * 1e3);
+  if (step_period_s > 0.01)
+    p.Add("step_period_ms: " + internal::Num(step_period_s * 1e3) + " must be <= 10");
+  internal::ValidateCameras(cameras, &p);
+  return p.Message();
+}
+
+robots::HexapodModel TrueHexapodModel(const HexapodWorldConfig& config) {
+  robots::HexapodModel truth = config.nominal;
+  std::mt19937 rng(config.seed);
+  std::normal_distribution<double> unit(0.0, 1.0);
+  // Fixed draw order (base points, platform points, offsets), so a seed names one robot.
+  for (auto& a : truth.p_B_A) {
+    for (int k = 0; k < 3; ++k) a[k] += config.base_point_sigma_mm * 1e-3 * unit(rng);
+  }
+  for (auto& b : truth.p_P_B) {
+    for (int k = 0; k < 3; ++k) b[k] += config.platform_point_sigma_mm * 1e-3 * unit(rng);
+  }
+  for (double& q0 : truth.q0) q0 += config.joint_offset_sigma_mm * 1e-3 * unit(rng);
+  return truth;
+}
+
+HexapodWorldConfig LoadHexapodWorldConfig(const std::string& path) {
+  internal::WorldConfigReader r(path, "hexapod");
+  HexapodWorldConfig c;
+  c.robot_description = r.Path("robot");
+  if (!c.robot_description.empty()) {
+    try {
+      robots::HexapodDescription d = robots::LoadHexapodDescription(c.robot_description);
+      c.nominal = d.model;
+      c.X_BP_home = d.X_BP_home;
+    } catch (const std::exception& e) {
+      r.Problem(std::string("robot: ") + e.what());
+    }
+  }
+  c.seed = static_cast<uint32_t>(r.Integer("seed", c.seed));
+  c.base_point_sigma_mm = r.Number("perturbation.base_point_sigma_mm", c.base_point_sigma_mm);
+  c.platform_point_sigma_mm =
+      r.Number("perturbation.platform_point_sigma_mm", c.platform_point_sigma_mm);
+  c.joint_offset_sigma_mm = r.Number("perturbation.joint_offset_sigma_mm", c.joint_offset_sigma_mm);
+  r.CheckKeys("perturbation",
+              {"base_point_sigma_mm", "platform_point_sigma_mm", "joint_offset_sigma_mm"});
+  const std::vector<double> nodes =
+      r.Numbers("drives.nodes", kHexapodLegs, std::vector<double>(c.nodes.begin(), c.nodes.end()));
+  for (int j = 0; j < kHexapodLegs; ++j) c.nodes[j] = static_cast<int>(nodes[j]);
+  c.counts_per_metre = r.Number("drives.counts_per_metre", c.counts_per_metre);
+  c.max_velocity = r.Number("drives.max_velocity", c.max_velocity);
+  c.max_acceleration = r.Number("drives.max_acceleration", c.max_acceleration);
+  c.following_error_window = r.Number("drives.following_error_window", c.following_error_window);
+  r.CheckKeys("drives", {"nodes", "counts_per_metre", "max_velocity", "max_acceleration",
+                         "following_error_window"});
+  c.network = r.Text("can.network", c.network);
+  c.can_bitrate = static_cast<int>(r.Integer("can.bitrate", c.can_bitrate));
+  r.CheckKeys("can", {"network", "bitrate"});
+  c.step_period_s = r.Number("step_period_ms", c.step_period_s * 1e3) * 1e-3;
+  c.cameras = r.Cameras(c.cameras);
+  r.CheckKeys(
+      "", {"world", "robot", "seed", "perturbation", "drives", "can", "step_period_ms", "cameras"});
+  r.ThrowIfProblems();
+  const std::string invalid = c.Validate();
+  if (!invalid.empty()) r.Problem(invalid);
+  r.ThrowIfProblems();
+  return c;
+}
+
+// ---------------------------------------------------------------------------------------------
+
+struct HexapodWorld::Camera {
+  WorldCameraConfig config;
+  std::unique_ptr<vision::CameraModel> model;
+  std::mutex mutex;  // the renderer's scratch is not shared between threads
+  std::unique_ptr<vision::render::Renderer> renderer;
+};
+
+HexapodWorld::HexapodWorld(HexapodWorldConfig config, Timing timing)
+    : config_(std::move(config)),
+      timing_(timing),
+      true_(TrueHexapodModel(config_)),
+      clock_(timing == Timing::kStepped ? static_cast<hal::Clock*>(&sim_time_)
+                                        : &hal::SteadyClock::Instance()) {
+  std::string invalid = config_.Validate();
+  if (invalid.empty()) {
+    const std::string truth = true_.Validate();
+    if (!truth.empty()) invalid = "the perturbed (true) robot is not valid: " + truth;
+  }
+  if (!invalid.empty()) throw std::invalid_argument("hexapod world: " + invalid);
+
+  // The legs start where the true platform is at the home pose.
+  const robots::Reachability reach = robots::InverseKinematics(true_, config_.X_BP_home, &fk_data_);
+  if (!reach.ok()) {
+    throw std::invalid_argument("hexapod world: the true robot cannot reach the home pose: " +
+                                reach.Describe(true_, fk_data_.q));
+  }
+  state_.X_BP = config_.X_BP_home;
+  state_.q = fk_data_.q;
+  for (int j = 0; j < kHexapodLegs; ++j) {
+    state_.s[j] = state_.q[j] - true_.q0[j];
+    commanded_s_[j] = state_.s[j];
+  }
+
+  world_clock_ = std::make_unique<WorldClock>(&sim_time_, [this](hal::Duration t) { StepTo(t); });
+
+  hal::VirtualCanNetwork::Options net;
+  net.bitrate = config_.can_bitrate;
+  net.clock = clock_;
+  network_ = hal::VirtualCanNetwork::Get(config_.network, net);
+  if (&network_->clock() != clock_) {
+    throw hal::ConfigError("hexapod world: CAN network \"" + config_.network +
+                           "\" already exists in this process with another clock");
+  }
+  const double cpm = config_.counts_per_metre;
+  for (int j = 0; j < kHexapodLegs; ++j) {
+    const int node = config_.nodes[j];
+    drive_buses_.push_back(network_->Connect("hexapod leg " + std::to_string(j) + " (node " +
+                                             std::to_string(node) + ")"));
+    hal::CanopenDriveSim::Options o;
+    o.node = static_cast<uint8_t>(node);
+    o.serial_number = static_cast<uint32_t>(1000 + j);
+    o.device.limits.max_velocity = config_.max_velocity * cpm;
+    o.device.limits.max_acceleration = config_.max_acceleration * cpm;
+    // The actuator's end stops: the true stroke, in readings.
+    o.device.limits.min_position = std::ceil((true_.leg_length_min - true_.q0[j]) * cpm);
+    o.device.limits.max_position = std::floor((true_.leg_length_max - true_.q0[j]) * cpm);
+    o.device.following_error_window =
+        static_cast<uint32_t>(std::llround(config_.following_error_window * cpm));
+    drives_.push_back(std::make_unique<hal::CanopenDriveSim>(drive_buses_.back().get(), clock_, o));
+    drives_.back()->device().SetPlantHook(
+        [this, j](const hal::AxisState& commanded, double /*dt_s*/) {
+          return OnDriveStep(j, commanded);
+        });
+  }
+}
+
+HexapodWorld::~HexapodWorld() {
+  for (const auto& camera : cameras_) hal::UnregisterRenderSource(camera->config.name);
+  Stop();
+  // The drives' plant hooks point here: clear them before the drives go (they go with us).
+  for (auto& d : drives_) d->device().SetPlantHook({});
+}
+
+hal::Clock& HexapodWorld::clock() {
+  if (timing_ == Timing::kStepped) return *world_clock_;
+  return hal::SteadyClock::Instance();
+}
+
+void HexapodWorld::Step(hal::Duration dt) { StepTo(sim_time_.Now() + dt); }
+
+void HexapodWorld::StepTo(hal::Duration t) {
+  if (timing_ != Timing::kStepped) {
+    spdlog::critical("HexapodWorld::Step called on a real-time world");
+    std::abort();
+  }
+  const hal::Duration period = Seconds(config_.step_period_s);
+  while (sim_time_.Now() < t) {
+    sim_time_.AdvanceTo(std::min(t, sim_time_.Now() + period));
+    for (auto& d : drives_) d->Service();
+    UpdatePlant();
+  }
+}
+
+std::unique_ptr<hal::CanBus> HexapodWorld::ConnectHost(const std::string& node_name) {
+  return network_->Connect(node_name);
+}
+
+std::string HexapodWorld::virtual_backend() const { return "virtual:" + config_.network; }
+
+std::string HexapodWorld::ExposeSlcan(const std::string& link) {
+  if (timing_ != Timing::kRealTime) {
+    throw hal::ConfigError("hexapod world: an slcan adapter needs a real-time world");
+  }
+  if (adapter_) throw hal::ConfigError("hexapod world: the bus is already exposed");
+  pty_ = std::make_unique<hal::PtyPair>();
+  adapter_bus_ = network_->Connect("slcan adapter");
+  adapter_ = std::make_unique<hal::SlcanAdapterSim>(
+      pty_->MasterPort(kSlcanSerialBaud), adapter_bus_.get(), hal::SlcanAdapterSim::Options{});
+  std::string path = pty_->slave_path();
+  if (!link.empty()) {
+    pty_->CreateLink(link);
+    path = link;
+  }
+  if (running_) adapter_->Start();
+  return "slcan:" + path + "@" + std::to_string(kSlcanSerialBaud) +
+         ",bitrate=" + std::to_string(config_.can_bitrate);
+}
+
+void HexapodWorld::Start() {
+  if (timing_ != Timing::kRealTime || running_.exchange(true)) return;
+  if (adapter_) adapter_->Start();
+  for (auto& d : drives_) d->Start();
+  plant_thread_ = std::thread([this] { PlantLoop(); });
+}
+
+void HexapodWorld::Stop() {
+  if (!running_.exchange(false)) return;
+  if (plant_thread_.joinable()) plant_thread_.join();
+  if (adapter_) adapter_->Stop();
+  for (auto& d : drives_) d->Stop();
+}
+
+void HexapodWorld::PlantLoop() {
+  const auto period = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+      std::chrono::duration<double>(config_.step_period_s));
+  auto next = std::chrono::steady_clock::now();
+  while (running_) {
+    UpdatePlant();
+    next += period;
+    const auto now = std::chrono::steady_clock::now();
+    if (next < now) next = now;  // overran: do not try to catch up
+    std::this_thread::sleep_until(next);
+  }
+}
+
+hal::PlantFeedback HexapodWorld::OnDriveStep(int leg, const hal::AxisState& commanded) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const double cpm = config_.counts_per_metre;
+  hal::PlantFeedback fb;
+  fb.torque = static_cast<int16_t>(std::lround(commanded.torque));
+  if (!hooked_[leg]) {
+    // The drive's first step: its motion model still starts at 0 counts. Report where the leg
+    // is; the drive is powered off and re-synchronises its model to that.
+    hooked_[leg] = true;
+    fb.position = static_cast<int32_t>(std::lround(state_.s[leg] * cpm));
+    return fb;
+  }
+  commanded_s_[leg] = commanded.position / cpm;
+  if (state_.held) {
+    fb.position = static_cast<int32_t>(std::lround(state_.s[leg] * cpm));
+    fb.velocity = 0;
+  } else {
+    fb.position = static_cast<int32_t>(std::lround(commanded.position));
+    fb.velocity = static_cast<int32_t>(std::lround(commanded.velocity));
+  }
+  return fb;
+}
+
+void HexapodWorld::UpdatePlant() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  state_.time = clock_->Now();
+  ++state_.updates;
+  robots::Vector6d q;
+  for (int j = 0; j < kHexapodLegs; ++j) q[j] = true_.q0[j] + commanded_s_[j];
+  if (!state_.held && q == state_.q) return;  // nothing moved
+  // The previous pose is the warm start: legs move by micrometres per step, so Newton stays on
+  // the assembly mode the platform is in.
+  const robots::ForwardKinematicsSummary fk = robots::ForwardKinematics(
+      true_, q, state_.X_BP, robots::ForwardKinematicsOptions{}, &fk_data_);
+  const bool was_held = state_.held;
+  state_.fk_status = fk.status;
+  if (fk.converged()) {
+    state_.X_BP = fk.X_BP;
+    state_.q = q;
+    for (int j = 0; j < kHexapodLegs; ++j) state_.s[j] = commanded_s_[j];
+    state_.held = false;
+    if (was_held) spdlog::info("hexapod world: the platform follows the legs again");
+  } else {
+    state_.held = true;
+    ++state_.holds;
+    if (!was_held) {
+      spdlog::warn(
+          "hexapod world: forward kinematics of the commanded legs failed ({}, residual {} m, "
+          "condition {}): the platform holds",
+          robots::ToString(fk.status), fk.residual, fk.condition_number);
+    }
+  }
+}
+
+HexapodPlantState HexapodWorld::plant() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return state_;
+}
+
+hal::Cia402Device& HexapodWorld::drive_device(int leg) { return drive(leg).device(); }
+
+hal::CanopenDriveSim& HexapodWorld::drive(int leg) {
+  assert(leg >= 0 && leg < kHexapodLegs);
+  return *drives_.at(static_cast<size_t>(leg));
+}
+
+std::vector<std::string> HexapodWorld::RegisterCameras(SceneFactory factory) {
+  if (!factory) throw std::invalid_argument("hexapod world: RegisterCameras needs a scene factory");
+  std::vector<std::string> names;
+  for (const WorldCameraConfig& c : config_.cameras) {
+    auto camera = std::make_unique<Camera>();
+    camera->config = c;
+    camera->model = vision::OpenCameraModel(c.model);
+    camera->renderer = std::make_unique<vision::render::Renderer>(*camera->model, c.render);
+    Camera* cam = camera.get();
+    hal::CameraFormat format;
+    format.width = cam->model->width();
+    format.height = cam->model->height();
+    format.pixel_format = hal::PixelFormat::kMono8;
+    format.fps = c.fps;
+    hal::RegisterRenderSource(
+        c.name, format,
+        [this, cam, factory](uint64_t frame_id, hal::Duration, hal::Image* image) {
+          const HexapodPlantState state = plant();  // a copy: the render never blocks a step
+          const std::unique_ptr<vision::render::Scene> scene =
+              factory(true_, state, cam->config.X_WC);
+          std::lock_guard<std::mutex> lock(cam->mutex);
+          cam->renderer->Render(*scene, frame_id,
+                                vision::render::ImageView8{image->data.data(), image->width,
+                                                           image->height, image->stride});
+          return std::error_code{};
+        },
+        c.model);
+    names.push_back(c.name);
+    cameras_.push_back(std::move(camera));
+  }
+  return names;
+}
+
+std::vector<std::string> HexapodWorld::camera_sources() const {
+  std::vector<std::string> names;
+  for (const auto& camera : cameras_) names.push_back(camera->config.name);
+  return names;
+}
+
+}  // namespace kinevis::sim

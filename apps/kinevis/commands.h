@@ -27,6 +27,8 @@ void AddCameraCommands(CLI::App& app, CommandList* commands);
 void AddCalibrateCommands(CLI::App& app, CommandList* commands);
 // `kinevis sim world hexapod|diamond ...`: a simulated world as its own process.
 void AddSimWorldCommands(CLI::App& sim, CommandList* commands);
+// Called by AddSimWorldCommands: `kinevis sim world weld-cell` and `kinevis sim world soccer`.
+void AddCellWorldCommands(CLI::App& world, CommandList* commands);
 // `kinevis model hexapod|diamond|weld5 fk|ik ...` and `kinevis project MODEL ...`.
 void AddModelCommands(CLI::App& app, CommandList* commands);
 void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
