@@ -24,7 +24,8 @@ namespace {
 
 const char* const kSourceHelp =
     "Camera source: v4l2:/dev/video0[,width=W,height=H,fps=F,format=PIX,latest], "
-    "file:PATH[,loop,fps=F], images:GLOB[,loop,fps=F], sim:NAME (docs/cameras.md)";
+    "file:PATH[,loop,fps=F], images:GLOB[,loop,fps=F], sim:NAME, "
+    "net:HOST:PORT[,timeout_ms=N] (docs/cameras.md)";
 
 double Seconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
 

@@ -68,6 +68,8 @@ const char* AllowedOptions(Kind kind) {
       return "loop, fps=F, format=PIX, latest, intrinsics=ID";
     case Kind::kSim:
       return "fps=F, intrinsics=ID";
+    case Kind::kNet:
+      return "timeout_ms=N, intrinsics=ID";
   }
   return "";
 }
@@ -82,6 +84,8 @@ bool Allows(Kind kind, std::string_view key) {
       return key == "loop" || key == "format" || key == "latest";
     case Kind::kSim:
       return false;
+    case Kind::kNet:
+      return key == "timeout_ms";
   }
   return false;
 }
@@ -96,6 +100,8 @@ const char* TargetName(Kind kind) {
       return "glob pattern";
     case Kind::kSim:
       return "render source name";
+    case Kind::kNet:
+      return "HOST:PORT";
   }
   return "target";
 }
@@ -112,6 +118,8 @@ const char* ToString(CameraSourceSpec::Kind kind) {
       return "images";
     case Kind::kSim:
       return "sim";
+    case Kind::kNet:
+      return "net";
   }
   return "?";
 }
@@ -123,8 +131,8 @@ CameraSourceSpec ParseCameraSource(std::string_view source) {
   const size_t colon = source.find(':');
   if (colon == std::string_view::npos || colon == 0) {
     problems.Add(
-        "no scheme; expected SCHEME:TARGET with SCHEME one of v4l2, file, images, sim (see "
-        "docs/cameras.md)");
+        "no scheme; expected SCHEME:TARGET with SCHEME one of v4l2, file, images, sim, net "
+        "(see docs/cameras.md)");
     problems.ThrowIfAny();
   }
   const std::string_view scheme = source.substr(0, colon);
@@ -137,15 +145,16 @@ CameraSourceSpec ParseCameraSource(std::string_view source) {
   } else if (scheme == "sim") {
     spec.kind = Kind::kSim;
   } else if (scheme == "net") {
-    // CameraSourceSpec has no kind for it; OpenCamera() hands net: strings to
-    // ParseNetCameraSource() before they get here.
-    problems.Add(
-        "net: sources are parsed by ParseNetCameraSource() (hal/camera/net_camera.h) and opened "
-        "by OpenCamera()");
-    problems.ThrowIfAny();
+    // Fully validated by ParseNetCameraSource (host, port, options); the spec carries the kind and
+    // the HOST:PORT target for tools that describe a source.
+    const NetCameraOptions net = ParseNetCameraSource(source);
+    spec.kind = Kind::kNet;
+    spec.target = net.host + ":" + std::to_string(net.port);
+    spec.intrinsics_id = net.intrinsics_id;
+    return spec;
   } else {
     problems.Add("scheme \"" + std::string(scheme) +
-                 "\" is not a camera source (v4l2, file, images, sim)");
+                 "\" is not a camera source (v4l2, file, images, sim, net)");
     problems.ThrowIfAny();
   }
   const std::vector<std::string_view> fields = Split(source.substr(colon + 1), ',');

@@ -24,7 +24,7 @@
 namespace kinevis::hal {
 
 struct CameraSourceSpec {
-  enum class Kind { kV4l2, kFile, kImages, kSim };
+  enum class Kind { kV4l2, kFile, kImages, kSim, kNet };
   Kind kind = Kind::kFile;
   std::string text;    // the source string as given
   std::string target;  // device node, video file, glob pattern, or render source name

@@ -4,8 +4,11 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <chrono>
+#include <csignal>
+#include <filesystem>
 #include <regex>
 #include <string>
 #include <vector>
@@ -108,6 +111,26 @@ TEST(SimWorldCliTest, AHostProcessMovesTheSimulatedDiamondOverRs485) {
   ASSERT_EQ(q.size(), 2u) << after.out;
   EXPECT_NEAR(q[0], 2.0, 1e-3);
   EXPECT_EQ(world.Stop(SIGTERM), 0);
+}
+
+TEST(SimWorldCliTest, ASecondProcessGrabsTheWorldsCameraFramesOverTheNetwork) {
+  const std::string file = __FILE__;
+  const std::string root = file.substr(0, file.rfind("/tests/hil/"));
+  BackgroundProcess world(
+      {KinevisCliPath(), "sim", "world", "hexapod", "--config", root + "/config/hexapod-sim.yaml"});
+  std::string backend, camera_line;
+  ASSERT_TRUE(world.ReadLine(&backend, 20s));
+  ASSERT_TRUE(world.ReadLine(&camera_line, 20s)) << "no camera line after " << backend;
+  EXPECT_THAT(camera_line, ContainsRegex("^net:127\\.0\\.0\\.1:[0-9]+ hexapod-"));
+  const std::string source = camera_line.substr(0, camera_line.find(' '));
+  const std::string dir = "/tmp/kinevis_world_frames_" + std::to_string(::getpid());
+  const ProcessResult grab = Kinevis({"camera", "grab", source, "-n", "2", "-o", dir});
+  ASSERT_EQ(grab.exit_code, 0) << grab.out << grab.err;
+  EXPECT_THAT(grab.out, HasSubstr("# 2 frames"));
+  const ProcessResult info = Kinevis({"camera", "info", source});
+  EXPECT_EQ(info.exit_code, 0) << info.err;
+  EXPECT_EQ(world.Stop(SIGTERM), 0);
+  std::filesystem::remove_all(dir);
 }
 
 TEST(SimWorldCliTest, ABadConfigIsAUsageError) {

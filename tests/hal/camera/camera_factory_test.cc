@@ -91,7 +91,7 @@ TEST(ParseCameraSourceTest, NoOrUnknownScheme) {
   EXPECT_THAT(ParseError(":x"), HasSubstr("no scheme"));
   EXPECT_THAT(ParseError("rtsp://host/stream"),
               MatchesRegex(".*scheme \"rtsp\" is not a camera source \\(v4l2, file, images, "
-                           "sim\\).*"));
+                           "sim, net\\).*"));
 }
 
 TEST(ParseCameraSourceTest, EmptyTargetsNameWhatIsMissing) {

@@ -1,0 +1,378 @@
+#include "vision/render/renderer.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include "tests/utilities/allocation_counter.h"
+#include "vision/camera/pinhole_camera.h"
+
+namespace kinevis::vision::render {
+namespace {
+
+using ::testing::HasSubstr;
+using ::testing::MatchesRegex;
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// A uniform scene.
+class FlatScene final : public Scene {
+ public:
+  explicit FlatScene(double radiance) : radiance_(radiance) {}
+  Hit Trace(const Ray&) const override { return Hit{radiance_, 0, kInf}; }
+
+ private:
+  double radiance_;
+};
+
+// Object 1 (radiance hi, at depth 2) wherever n · d > 0, background (lo) elsewhere: for a central
+// camera at the origin the edge is the image of the plane n · X = 0 — a straight line for a
+// pinhole camera without distortion.
+class HalfSpaceScene final : public Scene {
+ public:
+  HalfSpaceScene(const Eigen::Vector3d& n, double lo, double hi) : n_(n), lo_(lo), hi_(hi) {}
+  Hit Trace(const Ray& ray) const override {
+    return n_.dot(ray.d_C) > 0.0 ? Hit{hi_, 1, 2.0} : Hit{lo_, 0, kInf};
+  }
+
+ private:
+  Eigen::Vector3d n_;
+  double lo_, hi_;
+};
+
+// An ideal pinhole (f = 200 px, 160×120) whose model domain ends at u = max_u: pixels beyond it
+// have no ray (kOutsideDomain), so the renderer must treat them as black background.
+class ClippedPinhole final : public CameraModel {
+ public:
+  explicit ClippedPinhole(double max_u) : max_u_(max_u) {}
+  std::string_view Name() const override { return "clipped-pinhole"; }
+  int width() const override { return 160; }
+  int height() const override { return 120; }
+  bool IsCentral() const override { return true; }
+  ProjectionStatus Project(const Eigen::Vector3d& p, Eigen::Vector2d* pixel,
+                           Matrix23d* = nullptr) const override {
+    if (p.z() <= 0.0) return ProjectionStatus::kBehindCamera;
+    *pixel = Eigen::Vector2d(200.0 * p.x() / p.z() + 79.5, 200.0 * p.y() / p.z() + 59.5);
+    return pixel->x() > max_u_ ? ProjectionStatus::kOutsideDomain : ProjectionStatus::kOk;
+  }
+  ProjectionStatus BackProject(const Eigen::Vector2d& pixel, Ray* ray,
+                               RayJacobian* = nullptr) const override {
+    if (pixel.x() > max_u_) return ProjectionStatus::kOutsideDomain;
+    ray->p_C_O.setZero();
+    ray->d_C =
+        Eigen::Vector3d((pixel.x() - 79.5) / 200.0, (pixel.y() - 59.5) / 200.0, 1.0).normalized();
+    return ProjectionStatus::kOk;
+  }
+  std::string Validate() const override { return ""; }
+
+ private:
+  double max_u_;
+};
+
+PinholeBrownCamera Pinhole(int width, int height, double f) {
+  PinholeBrownParameters p;
+  p.width = width;
+  p.height = height;
+  p.fx = p.fy = f;
+  p.cx = 0.5 * (width - 1) + 0.3;
+  p.cy = 0.5 * (height - 1) - 0.2;
+  return PinholeBrownCamera(p);
+}
+
+struct Frame {
+  std::vector<uint8_t> pixels;
+  ImageView8 view;
+};
+
+Frame MakeFrame(const CameraModel& camera) {
+  Frame f;
+  f.pixels.assign(static_cast<size_t>(camera.width()) * camera.height(), 0);
+  f.view = ImageView8{f.pixels.data(), camera.width(), camera.height(),
+                      static_cast<size_t>(camera.width())};
+  return f;
+}
+
+TEST(RenderOptionsTest, DefaultsAreValid) { EXPECT_EQ(RenderOptions{}.Validate(), ""); }
+
+TEST(RenderOptionsTest, ValidateNamesEveryBadFieldAndValue) {
+  RenderOptions o;
+  o.supersampling = 0;
+  o.edge_radiance_step = -1.0;
+  o.blur_sigma_px = std::nan("");
+  o.vignetting = 1.5;
+  o.exposure = 0.0;
+  o.noise_sigma = -2.0;
+  const std::string message = o.Validate();
+  EXPECT_THAT(message, HasSubstr("supersampling = 0"));
+  EXPECT_THAT(message, HasSubstr("edge_radiance_step = -1"));
+  EXPECT_THAT(message, HasSubstr("blur_sigma_px = nan"));
+  EXPECT_THAT(message, HasSubstr("vignetting = 1.5"));
+  EXPECT_THAT(message, HasSubstr("exposure = 0"));
+  EXPECT_THAT(message, HasSubstr("noise_sigma = -2"));
+  const ClippedPinhole camera(1e9);
+  try {
+    Renderer renderer(camera, o);
+    FAIL() << "no exception";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()), message);
+  }
+}
+
+TEST(RendererTest, ExposureAndQuantisation) {
+  const ClippedPinhole camera(1e9);
+  Frame f = MakeFrame(camera);
+  RenderOptions o;
+  o.exposure = 1.5;
+  Renderer(camera, o).Render(FlatScene(0.4), 0, f.view);
+  for (const uint8_t p : f.pixels) ASSERT_EQ(p, 153);  // 0.4 · 1.5 · 255 = 153
+  o.exposure = 3.0;
+  Renderer(camera, o).Render(FlatScene(0.4), 0, f.view);
+  for (const uint8_t p : f.pixels) ASSERT_EQ(p, 255);  // clamped
+}
+
+TEST(RendererTest, VignettingFallsOffQuadraticallyToTheCorner) {
+  const ClippedPinhole camera(1e9);
+  Frame f = MakeFrame(camera);
+  RenderOptions o;
+  o.vignetting = 0.5;
+  Renderer(camera, o).Render(FlatScene(0.8), 0, f.view);
+  const int w = camera.width(), h = camera.height();
+  EXPECT_EQ(f.pixels[0], 102);  // corner: 204 · (1 − 0.5)
+  EXPECT_EQ(f.pixels[static_cast<size_t>(h - 1) * w + w - 1], 102);
+  EXPECT_NEAR(f.pixels[static_cast<size_t>(h / 2) * w + w / 2], 204, 1);  // centre
+  // Half-way to the corner along the diagonal: 1 − 0.5 · 0.25.
+  const int u = static_cast<int>(std::lround(0.25 * (w - 1))),
+            v = static_cast<int>(std::lround(0.25 * (h - 1)));
+  const double r2 = (std::pow(u - 0.5 * (w - 1), 2) + std::pow(v - 0.5 * (h - 1), 2)) /
+                    (std::pow(0.5 * (w - 1), 2) + std::pow(0.5 * (h - 1), 2));
+  EXPECT_NEAR(f.pixels[static_cast<size_t>(v) * w + u], 204 * (1 - 0.5 * r2), 1.0);
+}
+
+TEST(RendererTest, SameInputsGiveIdenticalBytesAndSeedOrFrameChangeTheNoise) {
+  const PinholeBrownCamera camera = Pinhole(200, 150, 180.0);
+  const HalfSpaceScene scene(Eigen::Vector3d(1.0, 0.3, -0.1).normalized(), 0.2, 0.7);
+  RenderOptions o;
+  o.noise_sigma = 3.0;
+  o.blur_sigma_px = 0.8;
+  o.vignetting = 0.1;
+  o.seed = 42;
+  Frame a = MakeFrame(camera), b = MakeFrame(camera), c = MakeFrame(camera), d = MakeFrame(camera);
+  Renderer(camera, o).Render(scene, 7, a.view);
+  Renderer(camera, o).Render(scene, 7, b.view);
+  EXPECT_EQ(a.pixels, b.pixels);
+  Renderer reused(camera, o);
+  reused.Render(scene, 3, c.view);
+  reused.Render(scene, 7, c.view);  // a renderer's history does not matter
+  EXPECT_EQ(a.pixels, c.pixels);
+  reused.Render(scene, 8, d.view);
+  EXPECT_NE(a.pixels, d.pixels);
+  o.seed = 43;
+  Renderer(camera, o).Render(scene, 7, d.view);
+  EXPECT_NE(a.pixels, d.pixels);
+  // The difference is noise-sized, not a different picture.
+  double sum2 = 0.0;
+  for (size_t i = 0; i < a.pixels.size(); ++i) {
+    sum2 += std::pow(static_cast<double>(a.pixels[i]) - d.pixels[i], 2);
+  }
+  EXPECT_NEAR(std::sqrt(sum2 / a.pixels.size()), 3.0 * std::sqrt(2.0), 0.5);
+}
+
+TEST(RendererTest, NoiseSigmaOnAFlatRegionMatchesTheOption) {
+  const PinholeBrownCamera camera = Pinhole(321, 241, 300.0);  // odd sizes on purpose
+  Frame f = MakeFrame(camera);
+  for (const double sigma : {2.0, 5.0, 12.0}) {
+    RenderOptions o;
+    o.noise_sigma = sigma;
+    o.seed = 11;
+    Renderer(camera, o).Render(FlatScene(0.5), 0, f.view);
+    double sum = 0.0, sum2 = 0.0;
+    for (const uint8_t p : f.pixels) {
+      sum += p;
+      sum2 += static_cast<double>(p) * p;
+    }
+    const double n = static_cast<double>(f.pixels.size());
+    const double mean = sum / n;
+    const double measured = std::sqrt(sum2 / n - mean * mean);
+    // Rounding to integers adds 1/12 grey level² of variance.
+    const double expected = std::sqrt(sigma * sigma + 1.0 / 12.0);
+    EXPECT_NEAR(mean, 127.5, 0.2) << sigma;
+    EXPECT_NEAR(measured, expected, 0.1 * sigma) << sigma;
+    EXPECT_NEAR(measured, expected, 0.02 * sigma) << sigma;  // in fact much closer
+    // Independent pixels: a row's last pixel and the next row's first do not repeat each other,
+    // nor do horizontal neighbours (equal by chance with probability ≈ 1/(2√π σ)).
+    int same_wrap = 0, same_next = 0;
+    for (int v = 0; v + 1 < 241; ++v) {
+      same_wrap += f.pixels[v * 321 + 320] == f.pixels[(v + 1) * 321];
+      same_next += f.pixels[v * 321 + 100] == f.pixels[v * 321 + 101];
+    }
+    EXPECT_LT(same_wrap, 240 * (0.1 + 0.3 / sigma)) << sigma;
+    EXPECT_LT(same_next, 240 * (0.1 + 0.3 / sigma)) << sigma;
+  }
+}
+
+// The sub-pixel position of a straight edge along row v from the anti-aliased coverage: the
+// strip of row v between pixel columns [first, last] (background at first, object at last, or
+// the reverse) holds Σ f_k pixels of object, f_k = (I_k − lo)/(hi − lo); exact for a straight
+// edge that stays inside the window over the row's height, for a box filter.
+double EdgeAlongRow(const std::vector<uint8_t>& image, int width, int v, int first, int last,
+                    double lo, double hi, bool object_on_right) {
+  double covered = 0.0;
+  for (int u = first; u <= last; ++u) {
+    covered += (image[static_cast<size_t>(v) * width + u] - lo) / (hi - lo);
+  }
+  return object_on_right ? last + 0.5 - covered : first - 0.5 + covered;
+}
+
+TEST(RendererTest, StraightEdgeLiesWhereTheModelSaysToTheAntiAliasingBound) {
+  const PinholeBrownCamera camera = Pinhole(320, 240, 250.0);
+  const auto& k = camera.parameters();
+  Frame f = MakeFrame(camera);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> tilt(-0.6, 0.6);
+  // The grey levels of the two sides as rendered (0.1 · 255 and 0.9 · 255, rounded).
+  const double kLo = std::round(0.1 * 255), kHi = std::round(0.9 * 255);
+  for (const int s : {1, 2, 4, 8}) {
+    double max_error = 0.0;
+    for (int trial = 0; trial < 4; ++trial) {
+      // A near-vertical edge through the image (|du/dv| < 0.6 keeps it inside a ±3 px window).
+      const double slope = tilt(rng), u_mid = 120.0 + 20.0 * trial + 0.37 * trial;
+      // Image line u = u_mid + slope (v − cy) ⇔ x = (u_mid − cx)/f + slope y in normalised
+      // coordinates ⇒ plane normal (1, −slope, −(u_mid − cx)/f).
+      const Eigen::Vector3d n(1.0, -slope, -(u_mid - k.cx) / k.fx);
+      RenderOptions o;
+      o.supersampling = s;
+      Renderer renderer(camera, o);
+      renderer.Render(HalfSpaceScene(n.normalized(), 0.1, 0.9), 0, f.view);
+      EXPECT_GT(renderer.last_edge_pixels(), 0);
+      for (int v = 5; v < camera.height() - 5; ++v) {
+        const double u_true = u_mid + slope * (v - k.cy);
+        const int c = static_cast<int>(std::floor(u_true));
+        const double u_measured =
+            EdgeAlongRow(f.pixels, camera.width(), v, c - 3, c + 4, kLo, kHi, true);
+        max_error = std::max(max_error, std::abs(u_measured - u_true));
+      }
+    }
+    // Anti-aliasing bound 1/(2s) px, plus 8-bit quantisation: ±0.5 grey level in each of the (at
+    // most 3) partly covered window pixels over a contrast of 204 levels, < 0.01 px.
+    EXPECT_LT(max_error, 0.5 / s + 0.01) << "s = " << s;
+    if (s == 1) {
+      EXPECT_GT(max_error, 0.2);  // without supersampling the edge is aliased
+    }
+    RecordProperty("max_edge_error_px_s" + std::to_string(s), std::to_string(max_error));
+    std::printf("straight edge, s = %d: max error %.4f px (bound %.4f)\n", s, max_error,
+                0.5 / s + 0.01);
+  }
+}
+
+TEST(RendererTest, SubsampleRayInterpolationIsVerifiedAndTiny) {
+  const PinholeBrownCamera camera = Pinhole(320, 240, 250.0);
+  const Renderer renderer(camera, RenderOptions{});
+  EXPECT_EQ(renderer.interpolated_cell_fraction(), 1.0);
+  EXPECT_LT(renderer.max_ray_interpolation_error_px(), 1e-3);
+  // Cells touching the model's domain boundary are not interpolated.
+  const ClippedPinhole clipped(100.2);
+  const Renderer clipped_renderer(clipped, RenderOptions{});
+  EXPECT_NEAR(clipped_renderer.interpolated_cell_fraction(), 100.0 / 159.0, 1e-9);
+}
+
+TEST(RendererTest, PixelsWithoutARayAreBlackBackgroundAndTheDomainEdgeIsAntiAliased) {
+  // Domain ends at u = 100.2: pixel 100 has 0.7 of its area in the domain (u ∈ [99.5, 100.2]).
+  const ClippedPinhole camera(100.2);
+  Frame f = MakeFrame(camera);
+  GroundTruth truth;
+  RenderOptions o;
+  o.supersampling = 10;
+  Renderer renderer(camera, o);
+  renderer.Render(FlatScene(1.0), 0, f.view, &truth);
+  const int w = camera.width();
+  for (int v = 0; v < camera.height(); ++v) {
+    EXPECT_EQ(f.pixels[static_cast<size_t>(v) * w + 99], 255);
+    EXPECT_EQ(f.pixels[static_cast<size_t>(v) * w + 100], 179);  // 0.7 · 255 = 178.5
+    EXPECT_EQ(f.pixels[static_cast<size_t>(v) * w + 101], 0);
+    EXPECT_EQ(truth.object[static_cast<size_t>(v) * w + 101], 0);
+    EXPECT_TRUE(std::isinf(truth.depth[static_cast<size_t>(v) * w + 101]));
+  }
+}
+
+TEST(RendererTest, GroundTruthIsTheObjectAndDepthAtPixelCentres) {
+  const PinholeBrownCamera camera = Pinhole(160, 120, 150.0);
+  const HalfSpaceScene scene(Eigen::Vector3d(1.0, 0.5, 0.2).normalized(), 0.2, 0.6);
+  Frame f = MakeFrame(camera);
+  GroundTruth truth;
+  Renderer renderer(camera, RenderOptions{});
+  renderer.Render(scene, 0, f.view, &truth);
+  ASSERT_EQ(truth.width, 160);
+  ASSERT_EQ(truth.height, 120);
+  ASSERT_EQ(truth.object.size(), 160u * 120u);
+  int objects = 0;
+  for (int v = 0; v < 120; ++v) {
+    for (int u = 0; u < 160; ++u) {
+      Ray ray;
+      ASSERT_EQ(camera.BackProject(Eigen::Vector2d(u, v), &ray), ProjectionStatus::kOk);
+      const Hit hit = scene.Trace(ray);
+      ASSERT_EQ(truth.object[v * 160 + u], hit.object);
+      ASSERT_EQ(truth.depth[v * 160 + u], static_cast<float>(hit.depth));
+      objects += hit.object;
+    }
+  }
+  EXPECT_GT(objects, 1000);
+  EXPECT_LT(objects, 160 * 120 - 1000);
+}
+
+TEST(RendererTest, BlurKeepsFlatRegionsAndSoftensEdges) {
+  const PinholeBrownCamera camera = Pinhole(160, 120, 150.0);
+  const HalfSpaceScene scene(Eigen::Vector3d(1.0, 0.0, 0.0), 0.2, 0.8);  // edge at u = cx
+  Frame sharp = MakeFrame(camera), soft = MakeFrame(camera);
+  RenderOptions o;
+  Renderer(camera, o).Render(scene, 0, sharp.view);
+  o.blur_sigma_px = 2.0;
+  Renderer(camera, o).Render(scene, 0, soft.view);
+  const int v = 60, cu = static_cast<int>(camera.parameters().cx);
+  EXPECT_EQ(soft.pixels[v * 160 + 5], sharp.pixels[v * 160 + 5]);  // far from the edge
+  EXPECT_EQ(soft.pixels[v * 160 + 155], sharp.pixels[v * 160 + 155]);
+  EXPECT_EQ(sharp.pixels[v * 160 + cu + 3], 204);
+  EXPECT_LT(soft.pixels[v * 160 + cu + 3], 200);  // 3 px ≈ 1.5σ from the edge: softened
+  // Blur conserves the row's total (edges far from the borders).
+  long sum_sharp = 0, sum_soft = 0;
+  for (int u = 0; u < 160; ++u) {
+    sum_sharp += sharp.pixels[v * 160 + u];
+    sum_soft += soft.pixels[v * 160 + u];
+  }
+  EXPECT_NEAR(sum_soft, sum_sharp, 10);
+}
+
+TEST(RendererTest, NoAllocationAfterTheFirstFrame) {
+  const PinholeBrownCamera camera = Pinhole(200, 150, 180.0);
+  const HalfSpaceScene scene(Eigen::Vector3d(1.0, 0.3, -0.1).normalized(), 0.2, 0.7);
+  RenderOptions o;
+  o.noise_sigma = 2.0;
+  o.blur_sigma_px = 1.0;
+  o.vignetting = 0.2;
+  Renderer renderer(camera, o);
+  Frame f = MakeFrame(camera);
+  GroundTruth truth;
+  renderer.Render(scene, 0, f.view, &truth);
+  const long before = kinevis::testing::ThreadAllocations();
+  renderer.Render(scene, 1, f.view, &truth);
+  renderer.Render(scene, 2, f.view);
+  EXPECT_EQ(kinevis::testing::ThreadAllocations() - before, 0);
+}
+
+TEST(RendererTest, EdgePixelsAreOnlyFoundWhereThereIsAnEdge) {
+  const PinholeBrownCamera camera = Pinhole(160, 120, 150.0);
+  Frame f = MakeFrame(camera);
+  Renderer renderer(camera, RenderOptions{});
+  renderer.Render(FlatScene(0.3), 0, f.view);
+  EXPECT_EQ(renderer.last_edge_pixels(), 0);
+  renderer.Render(HalfSpaceScene(Eigen::Vector3d(1.0, 0.0, 0.0), 0.2, 0.8), 0, f.view);
+  // A vertical edge: the two columns either side of it, every row.
+  EXPECT_EQ(renderer.last_edge_pixels(), 2 * 120);
+}
+
+}  // namespace
+}  // namespace kinevis::vision::render

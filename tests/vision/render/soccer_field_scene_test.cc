@@ -1,0 +1,283 @@
+#include "vision/render/scenes/soccer_field_scene.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include "vision/camera/hyperbolic_mirror_camera.h"
+
+namespace kinevis::vision::render {
+namespace {
+
+HyperbolicMirrorCamera SeedCamera() {
+  return HyperbolicMirrorCamera(HyperbolicMirrorParameters::Seed000Lens4mm());
+}
+
+bool IsGround(int object) {
+  return object == kFieldCarpet || object == kFieldLine || object == kFieldFloor;
+}
+
+// Every pixel that sees the ground: the scene's line/carpet decision is the analytic line distance
+// of the camera's own BackProjectToGround() point, and the traced ground point is that point.
+void CheckLinesAgainstGroundMap(const HyperbolicMirrorCamera& camera, const SoccerFieldScene& scene,
+                                int* line_pixels, int* ground_pixels) {
+  *line_pixels = 0;
+  *ground_pixels = 0;
+  int mismatches = 0;
+  double worst_point = 0.0;
+  const double half_width = 0.5 * scene.parameters().line_width;
+  for (int v = 0; v < camera.height(); ++v) {
+    for (int u = 0; u < camera.width(); ++u) {
+      const Eigen::Vector2d pixel(u, v);
+      Ray ray;
+      if (camera.BackProject(pixel, &ray) != ProjectionStatus::kOk) continue;
+      const Hit hit = scene.Trace(ray);
+      if (!IsGround(hit.object)) continue;
+      Eigen::Vector2d p_G;
+      ASSERT_EQ(camera.BackProjectToGround(pixel, &p_G), ProjectionStatus::kOk) << u << "," << v;
+      const Eigen::Vector3d traced_G = scene.X_CG().inverse() * (ray.p_C_O + hit.depth * ray.d_C);
+      // The camera's ground map and our ray–plane intersection agree to rounding, which grows with
+      // the distance (grazing rays): 8e-6 m at 10 m measured with a misaligned sensor.
+      const double tolerance = 2e-6 * (1.0 + p_G.norm());
+      worst_point = std::max(worst_point, (traced_G.head<2>() - p_G).norm() / tolerance);
+      EXPECT_NEAR(traced_G.z(), 0.0, 1e-9);
+      const FieldPoint truth = scene.ClassifyGround(p_G);
+      ++*ground_pixels;
+      if (truth.on_line) ++*line_pixels;
+      // Undecidable within rounding: skip points on a line's border.
+      if (std::abs(truth.line_distance - half_width) < tolerance) continue;
+      if (truth.on_line != (hit.object == kFieldLine)) ++mismatches;
+    }
+  }
+  EXPECT_EQ(mismatches, 0);
+  EXPECT_LT(worst_point, 1.0);
+}
+
+TEST(SoccerFieldScene, LinePixelsAreWhereTheGroundMapPutsLines) {
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  SoccerFieldSceneParameters p;
+  p.robot_x = 1.2;
+  p.robot_y = -0.7;
+  p.robot_heading = 0.4;
+  const SoccerFieldScene scene(camera, p);
+  int lines = 0, ground = 0;
+  CheckLinesAgainstGroundMap(camera, scene, &lines, &ground);
+  std::printf("robot at (1.2, -0.7, 0.4): %d ground pixels, %d on lines\n", ground, lines);
+  EXPECT_GT(ground, 100000);
+  EXPECT_GT(lines, 500);
+}
+
+TEST(SoccerFieldScene, LinesNearAGoalAreaWithATiltedMirror) {
+  HyperbolicMirrorParameters mp = HyperbolicMirrorParameters::Seed000Lens4mm();
+  mp.ground_rho = 0.02;
+  mp.ground_theta = -0.015;
+  mp.sensor_offset_x = 0.0003;
+  const HyperbolicMirrorCamera camera(mp);
+  SoccerFieldSceneParameters p;
+  p.robot_x = 7.5;
+  p.robot_y = 1.0;
+  p.robot_heading = -2.5;
+  const SoccerFieldScene scene(camera, p);
+  int lines = 0, ground = 0;
+  CheckLinesAgainstGroundMap(camera, scene, &lines, &ground);
+  EXPECT_GT(lines, 500);
+}
+
+TEST(SoccerFieldScene, RenderedLineMaskMatchesTheGroundTruth) {
+  // Through the Renderer: pixels well inside a line are white, well inside the carpet green-grey;
+  // a threshold mask of the 8-bit image equals the analytic line mask away from line borders.
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  SoccerFieldSceneParameters p;
+  p.robot_x = 0.4;
+  p.robot_y = 0.3;
+  p.robot_heading = -0.7;
+  const SoccerFieldScene scene(camera, p);
+  Renderer renderer(camera, RenderOptions{});
+  const int width = camera.width(), height = camera.height();
+  std::vector<uint8_t> image(static_cast<size_t>(width) * height);
+  GroundTruth truth;
+  renderer.Render(scene, 0, ImageView8{image.data(), width, height, static_cast<size_t>(width)},
+                  &truth);
+  const double threshold = 255.0 * 0.5 * (p.line_radiance + p.carpet_radiance);
+  int checked = 0, line_pixels = 0, wrong = 0, dark_outside = 0, outside = 0;
+  for (int v = 1; v < height - 1; ++v) {
+    for (int u = 1; u < width - 1; ++u) {
+      const int i = v * width + u;
+      // Whether the 3×3 neighbourhood sees one kind of thing (no anti-aliasing mix).
+      bool all_background = true, all_ground = true;
+      for (int dv = -1; dv <= 1; ++dv) {
+        for (int du = -1; du <= 1; ++du) {
+          const int object = truth.object[i + dv * width + du];
+          all_background = all_background && object == kFieldBackground;
+          all_ground = all_ground && IsGround(object);
+        }
+      }
+      Ray ray;
+      if (camera.BackProject(Eigen::Vector2d(u, v), &ray) != ProjectionStatus::kOk) {
+        if (all_background) {
+          ++outside;
+          dark_outside += image[i] == 0;  // beyond the rim: background radiance 0
+        }
+        continue;
+      }
+      if (!all_ground) continue;
+      Eigen::Vector2d p_G;
+      if (!IsGround(truth.object[i]) ||
+          camera.BackProjectToGround(Eigen::Vector2d(u, v), &p_G) != ProjectionStatus::kOk) {
+        continue;
+      }
+      // Pixel footprint on the ground: from the ground map's Jacobian.
+      Eigen::Matrix2d J;
+      camera.BackProjectToGround(Eigen::Vector2d(u, v), &p_G, &J);
+      const double footprint = J.colwise().norm().maxCoeff();
+      const FieldPoint field = scene.ClassifyGround(p_G);
+      const double margin = std::abs(field.line_distance - 0.5 * p.line_width);
+      if (margin < 1.5 * footprint) continue;  // a border pixel: mixed by anti-aliasing
+      ++checked;
+      line_pixels += field.on_line;
+      wrong += field.on_line != (image[i] > threshold);
+    }
+  }
+  std::printf("rendered: %d pixels checked, %d on lines, %d wrong; %d of %d beyond the rim dark\n",
+              checked, line_pixels, wrong, dark_outside, outside);
+  EXPECT_GT(checked, 100000);
+  EXPECT_GT(line_pixels, 300);
+  EXPECT_EQ(wrong, 0);
+  EXPECT_EQ(dark_outside, outside);
+}
+
+TEST(SoccerFieldScene, CentreCircleAppearsAroundARobotAtTheCentre) {
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  SoccerFieldSceneParameters p;
+  p.robot_heading = 0.3;
+  const SoccerFieldScene scene(camera, p);
+  const Eigen::Isometry3d X_GF = scene.X_FG().inverse();
+  int on_circle = 0, occluded = 0, off_circle_carpet = 0, off_checked = 0;
+  Eigen::Vector2d first_pixel = Eigen::Vector2d::Zero(), opposite_pixel = first_pixel;
+  for (int k = 0; k < 720; ++k) {
+    const double a = 2.0 * M_PI * k / 720;
+    const Eigen::Vector2d dir(std::cos(a), std::sin(a));
+    for (double radius :
+         {p.centre_circle_radius, p.centre_circle_radius + 0.1, p.centre_circle_radius - 0.06}) {
+      const Eigen::Vector3d p_G = X_GF * Eigen::Vector3d(radius * dir.x(), radius * dir.y(), 0);
+      Eigen::Vector2d pixel;
+      ASSERT_EQ(camera.ProjectGroundPoint(p_G.head<2>(), &pixel), ProjectionStatus::kOk);
+      ASSERT_TRUE(camera.InImage(pixel));
+      Ray ray;
+      ASSERT_EQ(camera.BackProject(pixel, &ray), ProjectionStatus::kOk);
+      const Hit hit = scene.Trace(ray);
+      if (radius == p.centre_circle_radius) {
+        if (k == 0) first_pixel = pixel;
+        if (k == 360) opposite_pixel = pixel;
+        if (hit.object == kFieldLine) {
+          ++on_circle;
+        } else {
+          EXPECT_EQ(hit.object, kFieldMirrorPost) << "angle " << a;
+          ++occluded;
+        }
+      } else if (std::abs(dir.x()) > 0.2 && hit.object != kFieldMirrorPost) {
+        // Off the circle and away from the halfway line (x_F = 0): carpet.
+        ++off_checked;
+        if (hit.object == kFieldCarpet) ++off_circle_carpet;
+      }
+    }
+  }
+  std::printf("centre circle: %d of 720 samples white, %d behind posts\n", on_circle, occluded);
+  EXPECT_GT(on_circle, 650);
+  EXPECT_EQ(off_circle_carpet, off_checked);
+  EXPECT_GT(off_checked, 800);
+  // A ring around the image centre: opposite points of the circle lie on opposite sides of it.
+  const Eigen::Vector2d centre(camera.parameters().cx, camera.parameters().cy);
+  EXPECT_LT((first_pixel - centre).dot(opposite_pixel - centre), 0.0);
+}
+
+TEST(SoccerFieldScene, PostsHideThePartOfTheMirrorBehindThem) {
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  SoccerFieldSceneParameters p;
+  const SoccerFieldScene scene(camera, p);
+  int hidden = 0;
+  for (int i = 0; i < p.post_count; ++i) {
+    Eigen::Vector3d bottom, top;
+    scene.PostAxis(i, &bottom, &top);
+    // A point on the post's axis just below the mirror, seen directly.
+    const Eigen::Vector3d on_post = top - Eigen::Vector3d(0.0, 0.002, 0.0);
+    Eigen::Vector2d pixel;
+    ASSERT_EQ(camera.ProjectDirect(on_post, &pixel), ProjectionStatus::kOk);
+    Ray ray;
+    ASSERT_EQ(camera.BackProject(pixel, &ray), ProjectionStatus::kOk);
+    const Hit hit = scene.Trace(ray);
+    EXPECT_EQ(hit.object, kFieldMirrorPost);
+    EXPECT_EQ(hit.depth, 0.0);
+    hidden += hit.object == kFieldMirrorPost;
+    // 20° of azimuth away the mirror is seen.
+    const Eigen::Vector3d axis(camera.parameters().mirror_axis_x, 0.0,
+                               camera.parameters().mirror_axis_z);
+    const Eigen::Vector3d away =
+        axis + Eigen::AngleAxisd(0.35, Eigen::Vector3d::UnitY()) * (on_post - axis);
+    ASSERT_EQ(camera.ProjectDirect(away, &pixel), ProjectionStatus::kOk);
+    ASSERT_EQ(camera.BackProject(pixel, &ray), ProjectionStatus::kOk);
+    EXPECT_NE(scene.Trace(ray).object, kFieldMirrorPost);
+  }
+  EXPECT_EQ(hidden, 3);
+}
+
+TEST(SoccerFieldScene, RobotHidesTheGroundNearItAndTheImageCentreSeesTheLens) {
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  SoccerFieldSceneParameters p;
+  p.robot_x = -3.0;
+  const SoccerFieldScene scene(camera, p);
+  Ray ray;
+  // The image centre looks at the apex, which reflects the camera itself.
+  ASSERT_EQ(
+      camera.BackProject(Eigen::Vector2d(camera.parameters().cx, camera.parameters().cy), &ray),
+      ProjectionStatus::kOk);
+  EXPECT_EQ(scene.Trace(ray).object, kFieldLensBody);
+  // Ground points inside the body's footprint project into the image but are hidden by the body
+  // (or the lens), and a point at 0.3 m is hidden by the body's top edge.
+  for (double r : {0.1, 0.2, 0.3}) {
+    Eigen::Vector2d pixel;
+    ASSERT_EQ(camera.ProjectGroundPoint(Eigen::Vector2d(r, 0.05), &pixel), ProjectionStatus::kOk);
+    ASSERT_EQ(camera.BackProject(pixel, &ray), ProjectionStatus::kOk);
+    const int object = scene.Trace(ray).object;
+    EXPECT_TRUE(object == kFieldRobotBody || object == kFieldLensBody) << r << ": " << object;
+  }
+  // ... and at 0.6 m the carpet is seen.
+  Eigen::Vector2d pixel;
+  ASSERT_EQ(camera.ProjectGroundPoint(Eigen::Vector2d(0.6, 0.05), &pixel), ProjectionStatus::kOk);
+  ASSERT_EQ(camera.BackProject(pixel, &ray), ProjectionStatus::kOk);
+  EXPECT_EQ(scene.Trace(ray).object, kFieldCarpet);
+  // Pixels beyond the mirror rim are not back-projected: the renderer's background (dark).
+  EXPECT_NE(camera.BackProject(Eigen::Vector2d(2, 2), &ray), ProjectionStatus::kOk);
+  EXPECT_LT(SoccerFieldScene::kBackgroundRadiance, 0.05);
+}
+
+TEST(SoccerFieldScene, LineDistanceOfKnownPoints) {
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  const SoccerFieldScene scene(camera, SoccerFieldSceneParameters{});
+  EXPECT_NEAR(scene.LineDistance(Eigen::Vector2d(0.0, 0.0)), 0.0, 1e-12);   // halfway line
+  EXPECT_NEAR(scene.LineDistance(Eigen::Vector2d(0.3, 0.0)), 0.2, 1e-12);   // circle at 0.5
+  EXPECT_NEAR(scene.LineDistance(Eigen::Vector2d(3.0, 5.0)), 1.0, 1e-12);   // side line y = 6
+  EXPECT_NEAR(scene.LineDistance(Eigen::Vector2d(8.0, 1.0)), 0.25, 1e-12);  // goal area front
+  EXPECT_NEAR(scene.LineDistance(Eigen::Vector2d(6.9, 2.0)), 0.15, 1e-12);  // penalty area front
+  EXPECT_NEAR(scene.LineDistance(Eigen::Vector2d(8.5, 3.4)), 0.15, 1e-12);  // penalty side y=3.25
+}
+
+TEST(SoccerFieldScene, BadParametersAreNamedInOneMessage) {
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  SoccerFieldSceneParameters p;
+  p.line_width = -0.05;
+  p.post_count = 12;
+  p.carpet_radiance = 2.0;
+  EXPECT_THAT(p.Validate(), ::testing::MatchesRegex(
+                                ".*line_width = -0.05.*post_count = 12.*carpet_radiance = 2.*"));
+  EXPECT_THROW(SoccerFieldScene(camera, p), std::invalid_argument);
+  SoccerFieldSceneParameters tall;
+  tall.body_height = 0.7;  // above the pinhole (0.57 m)
+  EXPECT_THROW(SoccerFieldScene(camera, tall), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace kinevis::vision::render

@@ -1,0 +1,279 @@
+#include "vision/render/scenes/hexapod_scene.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <sstream>
+#include <stdexcept>
+
+#include "vision/render/primitives.h"
+
+namespace kinevis::vision::render {
+namespace {
+
+bool InUnitRange(double x) { return std::isfinite(x) && x >= 0.0 && x <= 1.0; }
+
+}  // namespace
+
+std::string HexapodSceneOptions::Validate() const {
+  std::ostringstream bad;
+  const char* sep = "";
+  auto add = [&](const char* field, double value, const char* why) {
+    bad << sep << field << " = " << value << " (" << why << ")";
+    sep = "; ";
+  };
+  if (!std::isfinite(plate_margin) || plate_margin < 0.0)
+    add("plate_margin", plate_margin, "must be finite and >= 0");
+  if (!InUnitRange(background_radiance))
+    add("background_radiance", background_radiance, "must be in [0, 1]");
+  if (!InUnitRange(leg_ambient)) add("leg_ambient", leg_ambient, "must be in [0, 1]");
+  if (!InUnitRange(leg_diffuse)) add("leg_diffuse", leg_diffuse, "must be in [0, 1]");
+  if (InUnitRange(leg_ambient) && InUnitRange(leg_diffuse) && leg_ambient + leg_diffuse > 1.0)
+    add("leg_ambient + leg_diffuse", leg_ambient + leg_diffuse, "must be <= 1");
+  if (!InUnitRange(plate_radiance)) add("plate_radiance", plate_radiance, "must be in [0, 1]");
+  if (!light_direction_B.allFinite() || light_direction_B.norm() == 0.0) {
+    bad << sep << "light_direction_B = (" << light_direction_B.transpose()
+        << ") (must be finite and non-zero)";
+    sep = "; ";
+  }
+  const std::string message = bad.str();
+  return message.empty() ? message : "invalid hexapod scene options: " + message;
+}
+
+Eigen::Isometry3d CameraLookingAt(const Eigen::Vector3d& eye_W, const Eigen::Vector3d& target_W,
+                                  const Eigen::Vector3d& up_W) {
+  const Eigen::Vector3d z = (target_W - eye_W).normalized();
+  const Eigen::Vector3d x = z.cross(up_W);  // image right = forward × up (y is down)
+  if (!(x.norm() > 1e-12) || !z.allFinite()) {
+    std::fprintf(stderr, "%s:%d: CameraLookingAt: degenerate eye/target/up\n", __FILE__, __LINE__);
+    std::abort();
+  }
+  Eigen::Isometry3d X_WC = Eigen::Isometry3d::Identity();
+  X_WC.linear().col(0) = x.normalized();
+  X_WC.linear().col(2) = z;
+  X_WC.linear().col(1) = z.cross(X_WC.linear().col(0));
+  X_WC.translation() = eye_W;
+  return X_WC;
+}
+
+// Seed 002 eq. (3), checked here rather than copied: with the axis' binormalised Plücker
+// coordinates (u, n̲, n) — u the unit direction, n̲ n = h × u for h the foot of the perpendicular
+// from the viewpoint to the axis, so n = |h| — one has u × n̲ = h / |h|, and the planes
+//   n1 = cos θ n̲ − sin θ (u × n̲),  n2 = −cos θ n̲ − sin θ (u × n̲),  sin θ = R / n
+// contain u (n_k · u = 0) and pass at distance |n_k · h| = sin θ · n = R from the axis, i.e.
+// they are the two planes through the viewpoint tangent to the cylinder. The equation as printed
+// is consistent; the test checks the tangency numerically.
+bool PredictCylinderLimbs(const Eigen::Vector3d& p_C_A, const Eigen::Vector3d& p_C_B, double radius,
+                          Eigen::Vector3d* n1_C, Eigen::Vector3d* n2_C) {
+  const Eigen::Vector3d axis = p_C_B - p_C_A;
+  const double length = axis.norm();
+  if (!(length > 0.0) || !(radius > 0.0)) return false;
+  const Eigen::Vector3d u = axis / length;
+  const Eigen::Vector3d h = p_C_A - p_C_A.dot(u) * u;  // foot of the perpendicular from 0
+  const double n = h.norm();
+  if (!(n > radius)) return false;  // viewpoint inside the cylinder: no tangent plane
+  const Eigen::Vector3d n_unit = h.cross(u) / n;
+  const Eigen::Vector3d u_cross_n = u.cross(n_unit);  // = h / n
+  const double sin_theta = radius / n;
+  const double cos_theta = std::sqrt(n * n - radius * radius) / n;  // ᵐz / ᵐn
+  *n1_C = cos_theta * n_unit - sin_theta * u_cross_n;
+  *n2_C = -cos_theta * n_unit - sin_theta * u_cross_n;
+  return true;
+}
+
+HexapodScene::HexapodScene(const robots::HexapodModel& model, const Eigen::Isometry3d& X_BP,
+                           const Eigen::Isometry3d& X_CB, const HexapodSceneOptions& options)
+    : options_(options), radius_(model.leg_radius) {
+  std::ostringstream bad;
+  const char* sep = "";
+  const std::string options_message = options_.Validate();
+  if (!options_message.empty()) {
+    bad << options_message;
+    sep = "; ";
+  }
+  if (!std::isfinite(model.leg_radius) || model.leg_radius <= 0.0) {
+    bad << sep << "leg_radius = " << model.leg_radius << " (must be finite and > 0)";
+    sep = "; ";
+  }
+  if (!X_BP.matrix().allFinite()) {
+    bad << sep << "X_BP is not finite";
+    sep = "; ";
+  }
+  if (!X_CB.matrix().allFinite()) {
+    bad << sep << "X_CB is not finite";
+    sep = "; ";
+  }
+  double base_extent = 0.0, platform_extent = 0.0;
+  for (int j = 0; j < robots::kHexapodLegs; ++j) {
+    const Eigen::Vector3d& p_B_A = model.p_B_A[j];
+    const Eigen::Vector3d& p_P_B = model.p_P_B[j];
+    if (!p_B_A.allFinite() || !p_P_B.allFinite()) {
+      bad << sep << "leg " << j << ": joint centres not finite (p_B_A = (" << p_B_A.transpose()
+          << "), p_P_B = (" << p_P_B.transpose() << "))";
+      sep = "; ";
+      continue;
+    }
+    Leg& leg = legs_[j];
+    leg.a = X_CB * p_B_A;
+    leg.b = X_CB * (X_BP * p_P_B);
+    leg.length = (leg.b - leg.a).norm();
+    if (!(leg.length > 0.0)) {
+      bad << sep << "leg " << j << ": A_j and B_j coincide at this pose (length 0)";
+      sep = "; ";
+      continue;
+    }
+    leg.w = (leg.b - leg.a) / leg.length;
+    leg.m0 = leg.w.cross(-leg.a);
+    base_extent = std::max(base_extent, p_B_A.head<2>().norm());
+    platform_extent = std::max(platform_extent, p_P_B.head<2>().norm());
+  }
+  const std::string message = bad.str();
+  if (!message.empty()) throw std::invalid_argument("hexapod scene: " + message);
+
+  light_C_ = X_CB.linear() * options_.light_direction_B.normalized();
+  for (Leg& leg : legs_) {
+    const Eigen::Vector3d oa = -leg.a;
+    leg.along0 = oa.dot(leg.w);
+    leg.o_perp = oa - leg.along0 * leg.w;
+    leg.c0 = leg.o_perp.squaredNorm() - radius_ * radius_;
+  }
+  const Eigen::Isometry3d X_CP = X_CB * X_BP;
+  base_.centre = X_CB.translation();
+  base_.normal = X_CB.linear().col(2);
+  base_.radius = base_extent + options_.plate_margin;
+  platform_.centre = X_CP.translation();
+  platform_.normal = X_CP.linear().col(2);
+  platform_.radius = platform_extent + options_.plate_margin;
+  base_.n_dot_c = base_.normal.dot(base_.centre);
+  platform_.n_dot_c = platform_.normal.dot(platform_.centre);
+  // Bounding cones from the origin of C (the viewpoint of every central camera): the cone of
+  // directions towards a sphere of radius ρ at distance D has half-angle asin(ρ / D). A small
+  // relative margin keeps grazing rays exact.
+  auto cone = [](const Eigen::Vector3d& centre, double rho, Eigen::Vector3d* axis, double* cos) {
+    const double distance = centre.norm();
+    rho *= 1.0 + 1e-6;
+    if (distance <= rho) {
+      *axis = Eigen::Vector3d::UnitZ();
+      *cos = -1.0;
+      return;
+    }
+    *axis = centre / distance;
+    *cos = std::sqrt(1.0 - (rho / distance) * (rho / distance));
+  };
+  for (Leg& leg : legs_) {
+    cone(0.5 * (leg.a + leg.b), std::hypot(0.5 * leg.length, radius_), &leg.cone_axis,
+         &leg.cone_cos);
+  }
+  cone(base_.centre, base_.radius, &base_.cone_axis, &base_.cone_cos);
+  cone(platform_.centre, platform_.radius, &platform_.cone_axis, &platform_.cone_cos);
+  for (int k = 0; k < kCones; ++k) {
+    const Eigen::Vector3d& axis = k < robots::kHexapodLegs    ? legs_[k].cone_axis
+                                  : k == robots::kHexapodLegs ? base_.cone_axis
+                                                              : platform_.cone_axis;
+    cone_x_[k] = axis.x();
+    cone_y_[k] = axis.y();
+    cone_z_[k] = axis.z();
+    cone_cos_[k] = k < robots::kHexapodLegs    ? legs_[k].cone_cos
+                   : k == robots::kHexapodLegs ? base_.cone_cos
+                                               : platform_.cone_cos;
+  }
+  if (!options_.base_plate) cone_cos_[robots::kHexapodLegs] = 2.0;  // never inside
+  if (!options_.platform_plate) cone_cos_[robots::kHexapodLegs + 1] = 2.0;
+}
+
+bool HexapodScene::PredictLegLimbs(int leg, Eigen::Vector3d* n1_C, Eigen::Vector3d* n2_C) const {
+  return PredictCylinderLimbs(legs_[leg].a, legs_[leg].b, radius_, n1_C, n2_C);
+}
+
+int HexapodScene::TracePlate(const Plate& plate, int id, const Ray& ray_C, double* t_best) const {
+  // Two-sided disc (IntersectDisc, inlined: this runs for every pixel).
+  // (The bounding cone was tested by the caller.)
+  const double denom = plate.normal.dot(ray_C.d_C);
+  if (std::abs(denom) < 1e-15) return 0;
+  const double num = plate.n_dot_c - plate.normal.dot(ray_C.p_C_O);
+  // t = num / denom must lie in (1e-9, t_best): tested without dividing first.
+  const double sign = denom > 0.0 ? 1.0 : -1.0;
+  if (!(sign * num > 1e-9 * sign * denom) || !(sign * num < *t_best * sign * denom)) return 0;
+  const double t = num / denom;
+  if ((ray_C.p_C_O + t * ray_C.d_C - plate.centre).squaredNorm() > plate.radius * plate.radius) {
+    return 0;
+  }
+  *t_best = t;
+  return id;
+}
+
+Hit HexapodScene::Trace(const Ray& ray_C) const {
+  const Eigen::Vector3d& o = ray_C.p_C_O;
+  const Eigen::Vector3d& d = ray_C.d_C;
+  const bool central_at_origin = o.x() == 0.0 && o.y() == 0.0 && o.z() == 0.0;
+  const double r2 = radius_ * radius_;
+  double t_best = kNoHit;
+  int best = 0;
+  // Which bounding cones contain the ray (all, for a ray from elsewhere than the origin).
+  unsigned inside = (1u << kCones) - 1;
+  if (central_at_origin) {
+    inside = 0;
+    for (int k = 0; k < kCones; ++k) {
+      const double c = d.x() * cone_x_[k] + d.y() * cone_y_[k] + d.z() * cone_z_[k];
+      inside |= static_cast<unsigned>(c >= cone_cos_[k]) << k;
+    }
+    if (inside == 0) return Hit{options_.background_radiance, 0, kNoHit};
+  }
+  for (int j = 0; j < robots::kHexapodLegs; ++j) {
+    if (!(inside & (1u << j))) continue;
+    const Leg& leg = legs_[j];
+    // Early out: the ray's line must pass within R of the axis' line,
+    // |(o − a) · (d × w)| <= R |d × w|, i.e. (d · (w × (o − a)))² <= R² (1 − (d · w)²).
+    // For rays from the origin of C, w × (o − a) is the precomputed moment m0.
+    const double dw = d.dot(leg.w);
+    const double a_coef = 1.0 - dw * dw;  // |d⊥|²
+    if (central_at_origin) {
+      const double dm = d.dot(leg.m0);
+      if (dm * dm > r2 * a_coef) continue;
+      // IntersectCylinder with the origin-dependent terms precomputed: |o⊥ + t d⊥|² = R², and
+      // o⊥ · d⊥ = o⊥ · d since o⊥ is normal to the axis.
+      if (a_coef < 1e-18) continue;
+      const double b = leg.o_perp.dot(d);
+      const double disc = b * b - a_coef * leg.c0;
+      if (disc < 0.0) continue;
+      const double s = std::sqrt(disc);
+      for (const double t : {(-b - s) / a_coef, (-b + s) / a_coef}) {
+        if (!(t > 1e-9) || !(t < t_best)) continue;
+        const double along = leg.along0 + t * dw;
+        if (along < 0.0 || along > leg.length) continue;
+        t_best = t;
+        best = j + 1;
+        break;
+      }
+    } else {
+      const double dm = d.dot(leg.w.cross(o - leg.a));
+      if (dm * dm > r2 * a_coef) continue;
+      const double t = IntersectCylinder(ray_C, leg.a, leg.b, radius_);
+      if (t < t_best) {
+        t_best = t;
+        best = j + 1;
+      }
+    }
+  }
+  int plate = 0;
+  if (options_.base_plate && (inside & (1u << robots::kHexapodLegs))) {
+    const int id = TracePlate(base_, kBasePlateId, ray_C, &t_best);
+    if (id) plate = id;
+  }
+  if (options_.platform_plate && (inside & (1u << (robots::kHexapodLegs + 1)))) {
+    const int id = TracePlate(platform_, kPlatformPlateId, ray_C, &t_best);
+    if (id) plate = id;
+  }
+  if (plate != 0) return Hit{options_.plate_radiance, plate, t_best};
+  if (best == 0) return Hit{options_.background_radiance, 0, kNoHit};
+  // Lambertian shading with the outward radial normal at the hit.
+  const Leg& leg = legs_[best - 1];
+  const Eigen::Vector3d p = o + t_best * d - leg.a;
+  const Eigen::Vector3d normal = (p - p.dot(leg.w) * leg.w) / radius_;
+  const double radiance =
+      options_.leg_ambient + options_.leg_diffuse * std::max(0.0, normal.dot(light_C_));
+  return Hit{radiance, best, t_best};
+}
+
+}  // namespace kinevis::vision::render
