@@ -7,10 +7,15 @@
 #include <vector>
 
 #include "robots/hexapod/hexapod_model.h"
+#include "vision/camera/hyperbolic_mirror_camera.h"
 #include "vision/camera/pinhole_camera.h"
+#include "vision/camera/tsai_camera.h"
 #include "vision/camera/unified_camera.h"
 #include "vision/render/renderer.h"
+#include "vision/render/scenes/diamond_marker_scene.h"
 #include "vision/render/scenes/hexapod_scene.h"
+#include "vision/render/scenes/laser_scene.h"
+#include "vision/render/scenes/soccer_field_scene.h"
 #include "vision/render/scenes/target_scene.h"
 
 namespace kinevis::vision::render {
@@ -89,6 +94,47 @@ void BM_ChessboardPerspective(benchmark::State& state) {
   RenderLoop(state, camera, scene, Options(state.range(0) != 0));
 }
 BENCHMARK(BM_ChessboardPerspective)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+// Seed 000's robot camera: the soccer field through the hyperbolic mirror (640×480).
+void BM_SoccerFieldMirror(benchmark::State& state) {
+  const HyperbolicMirrorCamera camera(HyperbolicMirrorParameters::Seed000Lens4mm());
+  SoccerFieldSceneParameters p;
+  p.robot_x = 1.2;
+  p.robot_y = -0.7;
+  p.robot_heading = 0.4;
+  const SoccerFieldScene scene(camera, p);
+  RenderLoop(state, camera, scene, Options(state.range(0) != 0));
+}
+BENCHMARK(BM_SoccerFieldMirror)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+// Seed 004's scanner: both stripes on the blade with pits, full 1616×1216 Tsai frame.
+void BM_LaserBlade1616x1216(benchmark::State& state) {
+  const TsaiCamera camera(TsaiParameters::Seed004());
+  LaserSceneParameters p;
+  p.curvature_xx = 2.0;
+  p.pits = {CavitationPit{Eigen::Vector2d(0.01, 0.0), 1.0e-3, 3e-3},
+            CavitationPit{Eigen::Vector2d(-0.02, 0.015), 0.5e-3, 2e-3}};
+  const LaserScene scene(p);
+  RenderLoop(state, camera, scene, Options(state.range(0) != 0));
+}
+BENCHMARK(BM_LaserBlade1616x1216)->Arg(0)->Unit(benchmark::kMillisecond);
+
+// Seed 001's marker camera (1280×640 pinhole, f = 1000 px) at 45°, 0.45 m from the RCM.
+void BM_DiamondMarker1280x640(benchmark::State& state) {
+  PinholeBrownParameters pp;
+  pp.width = 1280;
+  pp.height = 640;
+  pp.fx = pp.fy = 1000.0;
+  pp.cx = 639.5;
+  pp.cy = 319.5;
+  const PinholeBrownCamera camera(pp);
+  DiamondMarkerSceneParameters p;
+  p.X_CO = DiamondCameraPose(0.45).inverse();
+  p.p_O_T = Eigen::Vector3d(0.0, 0.1414, 0.1414);
+  const DiamondMarkerScene scene(p);
+  RenderLoop(state, camera, scene, Options(state.range(0) != 0));
+}
+BENCHMARK(BM_DiamondMarker1280x640)->Arg(0)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace kinevis::vision::render
