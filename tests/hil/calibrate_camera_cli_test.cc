@@ -22,13 +22,10 @@ namespace {
 using namespace std::chrono_literals;
 using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
-using testing::KinevisCliPath;
 using testing::ProcessResult;
-using testing::RunProcess;
 
 ProcessResult Kinevis(std::vector<std::string> args) {
-  args.insert(args.begin(), KinevisCliPath());
-  return RunProcess(args, 120s);
+  return testing::RunKinevis(std::move(args), 120s);
 }
 
 vision::PinholeBrownParameters TrueCamera() {

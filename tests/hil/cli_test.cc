@@ -16,50 +16,46 @@
 namespace kinevis {
 namespace {
 
+using testing::RunKinevis;
+
 using namespace std::chrono_literals;
 using testing::BackgroundProcess;
 using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
 using testing::KinevisCliPath;
 using testing::ProcessResult;
-using testing::RunProcess;
-
-ProcessResult Kinevis(std::vector<std::string> args) {
-  args.insert(args.begin(), KinevisCliPath());
-  return RunProcess(args, 60s);
-}
 
 TEST(CliTest, HelpListsTheCommandsAndExitsZero) {
-  ProcessResult r = Kinevis({"--help"});
+  ProcessResult r = RunKinevis({"--help"});
   EXPECT_EQ(r.exit_code, 0);
   EXPECT_THAT(r.out, HasSubstr("demo"));
   EXPECT_THAT(r.out, HasSubstr("ports"));
   EXPECT_THAT(r.out, HasSubstr("can"));
   EXPECT_THAT(r.out, HasSubstr("Exit codes"));
-  ProcessResult sub = Kinevis({"can", "dump", "--help"});
+  ProcessResult sub = RunKinevis({"can", "dump", "--help"});
   EXPECT_EQ(sub.exit_code, 0);
   EXPECT_THAT(sub.out, HasSubstr("--count"));
 }
 
 TEST(CliTest, UsageErrorsExitTwo) {
-  EXPECT_EQ(Kinevis({}).exit_code, 2);
-  EXPECT_EQ(Kinevis({"no-such-command"}).exit_code, 2);
-  EXPECT_EQ(Kinevis({"--log-level", "loud", "ports"}).exit_code, 2);
-  EXPECT_EQ(Kinevis({"can", "dump"}).exit_code, 2);  // missing backend
+  EXPECT_EQ(RunKinevis({}).exit_code, 2);
+  EXPECT_EQ(RunKinevis({"no-such-command"}).exit_code, 2);
+  EXPECT_EQ(RunKinevis({"--log-level", "loud", "ports"}).exit_code, 2);
+  EXPECT_EQ(RunKinevis({"can", "dump"}).exit_code, 2);  // missing backend
 }
 
 TEST(CliTest, MalformedBackendNamesTheFieldAndExitsTwo) {
-  ProcessResult r = Kinevis({"can", "dump", "slcan:/dev/ttyACM0,bitrate=333"});
+  ProcessResult r = RunKinevis({"can", "dump", "slcan:/dev/ttyACM0,bitrate=333"});
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_THAT(r.err, ContainsRegex("kinevis can dump: backend \"slcan:/dev/ttyACM0,bitrate=333\": "
                                    "bitrate \"333\""));
-  ProcessResult s = Kinevis({"can", "send", "virtual:x", "12#00"});
+  ProcessResult s = RunKinevis({"can", "send", "virtual:x", "12#00"});
   EXPECT_EQ(s.exit_code, 2);
   EXPECT_THAT(s.err, HasSubstr("frame id \"12\""));
 }
 
 TEST(CliTest, AbsentDeviceIsAHardwareErrorWithinTheTimeout) {
-  ProcessResult r = Kinevis({"can", "dump", "slcan:/dev/kinevis-no-such-adapter"});
+  ProcessResult r = RunKinevis({"can", "dump", "slcan:/dev/kinevis-no-such-adapter"});
   EXPECT_FALSE(r.timed_out);
   EXPECT_EQ(r.exit_code, 3);
   EXPECT_THAT(r.err, ContainsRegex("/dev/kinevis-no-such-adapter.*No such file or directory"));
@@ -67,29 +63,30 @@ TEST(CliTest, AbsentDeviceIsAHardwareErrorWithinTheTimeout) {
 
 TEST(CliTest, SocketCanWithoutKernelSupportOrInterfaceIsAHardwareError) {
   // On a kernel without PF_CAN the message says so; with PF_CAN, the interface does not exist.
-  ProcessResult r = Kinevis({"can", "dump", "socketcan:kvnope0", "--duration", "0.1"});
+  ProcessResult r = RunKinevis({"can", "dump", "socketcan:kvnope0", "--duration", "0.1"});
   EXPECT_EQ(r.exit_code, 3);
   EXPECT_THAT(r.err, ContainsRegex("socketcan:kvnope0.*(PF_CAN|no such interface|No such device)"));
 }
 
 TEST(CliTest, DumpOnAQuietVirtualBusEndsAfterItsDuration) {
-  ProcessResult r = Kinevis({"can", "dump", "virtual:x", "--duration", "0.2"});
+  ProcessResult r = RunKinevis({"can", "dump", "virtual:x", "--duration", "0.2"});
   EXPECT_EQ(r.exit_code, 0);
   EXPECT_EQ(r.out, "");
   EXPECT_THAT(r.err, HasSubstr("0 frames received"));
 }
 
 TEST(CliTest, SendOnVirtualBusSucceeds) {
-  ProcessResult r = Kinevis({"can", "send", "virtual:x", "123#DEADBEEF", "701#R", "--repeat", "3"});
+  ProcessResult r =
+      RunKinevis({"can", "send", "virtual:x", "123#DEADBEEF", "701#R", "--repeat", "3"});
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_THAT(r.err, HasSubstr("sent 6 frames"));
 }
 
 TEST(CliTest, PortsListsOrSaysNone) {
-  ProcessResult r = Kinevis({"ports"});
+  ProcessResult r = RunKinevis({"ports"});
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_THAT(r.out, ContainsRegex("PATH|no serial ports found"));
-  ProcessResult j = Kinevis({"ports", "--json"});
+  ProcessResult j = RunKinevis({"ports", "--json"});
   EXPECT_EQ(j.exit_code, 0);
   EXPECT_THAT(j.out, ContainsRegex("^\\["));
 }
@@ -113,7 +110,7 @@ class SlcanCliTest : public ::testing::Test {
 };
 
 TEST_F(SlcanCliTest, SendReachesTheBus) {
-  ProcessResult r = Kinevis({"can", "send", Backend(), "123#DEADBEEF", "12345678#01"});
+  ProcessResult r = RunKinevis({"can", "send", Backend(), "123#DEADBEEF", "12345678#01"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   hal::CanFrame f;
   ASSERT_FALSE(node_->Receive(&f, 5s));
@@ -159,7 +156,7 @@ TEST_F(SlcanCliTest, ReplaySendsTheFramesOfALog) {
         << "(1700000000.002000) can0 20000004#0004000000000000\n"  // error frame: skipped
         << "(1700000000.003000) can0 701#R\n";
   }
-  ProcessResult r = Kinevis({"can", "replay", Backend(), log, "--realtime"});
+  ProcessResult r = RunKinevis({"can", "replay", Backend(), log, "--realtime"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_THAT(r.err, HasSubstr("replayed 3 frames"));
   std::vector<std::string> got;
@@ -175,13 +172,13 @@ TEST(CliTest, ReplayOfABadLogNamesFileAndLine) {
     out << "(1700000000.000000) can0 080#\n"
         << "garbage here\n";
   }
-  ProcessResult r = Kinevis({"can", "replay", "virtual:x", log});
+  ProcessResult r = RunKinevis({"can", "replay", "virtual:x", log});
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_THAT(r.err, HasSubstr(log + ":2:"));
 }
 
 TEST(CliTest, DemoPassesEveryCheck) {
-  ProcessResult r = Kinevis({"demo"});
+  ProcessResult r = RunKinevis({"demo"});
   EXPECT_EQ(r.exit_code, 0) << r.out << r.err;
   EXPECT_THAT(r.out, ContainsRegex("demo: [0-9]+ checks passed, 0 failed"));
   EXPECT_THAT(r.out, ::testing::Not(HasSubstr("FAIL")));
@@ -200,16 +197,16 @@ TEST(DriveCliTest, MovesSimulatedCanopenDrivesInAnotherProcess) {
   std::string backend;
   ASSERT_TRUE(sim.ReadLine(&backend, 20s));
   ASSERT_THAT(backend, ::testing::StartsWith("slcan:/dev/pts/"));
-  testing::ProcessResult status = Kinevis({"drive", backend, "--nodes", "1,2", "status"});
+  testing::ProcessResult status = RunKinevis({"drive", backend, "--nodes", "1,2", "status"});
   ASSERT_EQ(status.exit_code, 0) << status.err;
   EXPECT_THAT(status.out, ContainsRegex("node 1.*Switch on disabled"));
   testing::ProcessResult move =
-      Kinevis({"drive", backend, "--nodes", "1,2", "--counts-per-rad", "10000", "move",
-               "--position", "0.5", "--duration", "0.5"});
+      RunKinevis({"drive", backend, "--nodes", "1,2", "--counts-per-rad", "10000", "move",
+                  "--position", "0.5", "--duration", "0.5"});
   EXPECT_EQ(move.exit_code, 0) << move.out << move.err;
   EXPECT_THAT(move.out, ContainsRegex("position 0\\.5"));
   // A node that is not on the bus: a hardware error naming it, within the SDO timeout.
-  testing::ProcessResult absent = Kinevis({"drive", backend, "--nodes", "9", "status"});
+  testing::ProcessResult absent = RunKinevis({"drive", backend, "--nodes", "9", "status"});
   EXPECT_FALSE(absent.timed_out);
   EXPECT_EQ(absent.exit_code, 3);
   EXPECT_THAT(absent.err, HasSubstr("node 9"));

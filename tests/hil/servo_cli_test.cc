@@ -18,18 +18,14 @@
 namespace kinevis {
 namespace {
 
+using testing::RunKinevis;
+
 using namespace std::chrono_literals;
 using testing::BackgroundProcess;
 using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
 using testing::KinevisCliPath;
 using testing::ProcessResult;
-using testing::RunProcess;
-
-ProcessResult Kinevis(std::vector<std::string> args) {
-  args.insert(args.begin(), KinevisCliPath());
-  return RunProcess(args, 60s);
-}
 
 class ServoCliTest : public ::testing::Test {
  protected:
@@ -48,7 +44,7 @@ class ServoCliTest : public ::testing::Test {
 
 TEST_F(ServoCliTest, PingPrintsModelAndFirmwareOfEachId) {
   StartSim(1, "mx-12w", {1, 2});
-  ProcessResult r = Kinevis({"servo", Backend(), "--protocol", "1", "--ids", "1,2", "ping"});
+  ProcessResult r = RunKinevis({"servo", Backend(), "--protocol", "1", "--ids", "1,2", "ping"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("id 1: model number 360 (mx-12w), firmware 41"));
   EXPECT_THAT(r.out, HasSubstr("id 2: model number 360 (mx-12w), firmware 41"));
@@ -56,7 +52,7 @@ TEST_F(ServoCliTest, PingPrintsModelAndFirmwareOfEachId) {
 
 TEST_F(ServoCliTest, MissingServoIsAHardwareErrorNamingTheBus) {
   StartSim(2, "xm430-w350", {1});
-  ProcessResult r = Kinevis(
+  ProcessResult r = RunKinevis(
       {"servo", Backend(), "--protocol", "2", "--ids", "1,5", "--timeout-ms", "20", "ping"});
   EXPECT_EQ(r.exit_code, 3);
   EXPECT_THAT(r.out, HasSubstr("id 5: no answer"));
@@ -66,19 +62,19 @@ TEST_F(ServoCliTest, MissingServoIsAHardwareErrorNamingTheBus) {
 
 TEST_F(ServoCliTest, MoveReachesThePositionAndReadShowsIt) {
   StartSim(2, "xm430-w350", {3});
-  ProcessResult m = Kinevis({"servo", Backend(), "--ids", "3", "--model", "xm430-w350", "move",
-                             "--position", "2.5", "--velocity", "3"});
+  ProcessResult m = RunKinevis({"servo", Backend(), "--ids", "3", "--model", "xm430-w350", "move",
+                                "--position", "2.5", "--velocity", "3"});
   ASSERT_EQ(m.exit_code, 0) << m.err;
   EXPECT_THAT(m.out, ContainsRegex("id 3: position 2\\.50[0-9]* rad"));
   EXPECT_NEAR(sim_->Position(3), 2.5, 0.01);
   EXPECT_EQ(sim_->Register(3, "torque_enable"), 1);
-  ProcessResult r = Kinevis(
+  ProcessResult r = RunKinevis(
       {"servo", Backend(), "--ids", "3", "--protocol", "2", "read", "--register", "goal_position"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("torque on"));
   EXPECT_THAT(r.out, ContainsRegex("goal_position = 1630 \\(2\\.50[0-9]* rad\\)"));
   ProcessResult off =
-      Kinevis({"servo", Backend(), "--ids", "3", "--protocol", "2", "torque", "off"});
+      RunKinevis({"servo", Backend(), "--ids", "3", "--protocol", "2", "torque", "off"});
   ASSERT_EQ(off.exit_code, 0) << off.err;
   EXPECT_EQ(sim_->Register(3, "torque_enable"), 0);
 }
@@ -86,28 +82,29 @@ TEST_F(ServoCliTest, MoveReachesThePositionAndReadShowsIt) {
 TEST_F(ServoCliTest, RebootClearsAnOverload) {
   StartSim(2, "xm430-w350", {1});
   sim_->InjectOverload(1);
-  ProcessResult r = Kinevis({"servo", Backend(), "--protocol", "2", "read"});
+  ProcessResult r = RunKinevis({"servo", Backend(), "--protocol", "2", "read"});
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("alarm: overload"));
-  ProcessResult b = Kinevis({"servo", Backend(), "--protocol", "2", "reboot"});
+  ProcessResult b = RunKinevis({"servo", Backend(), "--protocol", "2", "reboot"});
   ASSERT_EQ(b.exit_code, 0) << b.err;
   EXPECT_FALSE(sim_->Overloaded(1));
-  ProcessResult p1 = Kinevis({"servo", Backend(), "--protocol", "1", "reboot"});
+  ProcessResult p1 = RunKinevis({"servo", Backend(), "--protocol", "1", "reboot"});
   EXPECT_EQ(p1.exit_code, 2);
   EXPECT_THAT(p1.err, HasSubstr("power-cycle"));
 }
 
 TEST_F(ServoCliTest, UsageErrorsExitTwo) {
   StartSim(1, "mx-12w", {1});
-  EXPECT_EQ(Kinevis({"servo", Backend(), "--protocol", "3", "ping"}).exit_code, 2);
-  EXPECT_EQ(Kinevis({"servo", Backend(), "ping", "--bogus"}).exit_code, 2);
-  ProcessResult m = Kinevis({"servo", Backend(), "--protocol", "2", "--model", "mx-12w", "ping"});
+  EXPECT_EQ(RunKinevis({"servo", Backend(), "--protocol", "3", "ping"}).exit_code, 2);
+  EXPECT_EQ(RunKinevis({"servo", Backend(), "ping", "--bogus"}).exit_code, 2);
+  ProcessResult m =
+      RunKinevis({"servo", Backend(), "--protocol", "2", "--model", "mx-12w", "ping"});
   EXPECT_EQ(m.exit_code, 2);
   EXPECT_THAT(m.err, HasSubstr("--protocol 2"));
-  ProcessResult far = Kinevis({"servo", Backend(), "move", "--position", "7"});
+  ProcessResult far = RunKinevis({"servo", Backend(), "move", "--position", "7"});
   EXPECT_EQ(far.exit_code, 2);
   EXPECT_THAT(far.err, HasSubstr("outside"));
-  EXPECT_EQ(Kinevis({"servo", Backend(), "--model", "ax-99", "ping"}).exit_code, 2);
+  EXPECT_EQ(RunKinevis({"servo", Backend(), "--model", "ax-99", "ping"}).exit_code, 2);
 }
 
 TEST(ServoSimCliTest, SimulatorProcessServesTheCliUntilSigterm) {
@@ -116,7 +113,7 @@ TEST(ServoSimCliTest, SimulatorProcessServesTheCliUntilSigterm) {
   std::string backend;
   ASSERT_TRUE(sim.ReadLine(&backend, 10s));
   EXPECT_THAT(backend, ContainsRegex("^tty:/dev/pts/[0-9]+@57600$"));
-  ProcessResult r = Kinevis({"servo", backend, "--protocol", "2", "--ids", "1,2", "ping"});
+  ProcessResult r = RunKinevis({"servo", backend, "--protocol", "2", "--ids", "1,2", "ping"});
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_THAT(r.out, HasSubstr("id 2: model number 1020 (xm430-w350), firmware 46"));
   EXPECT_EQ(sim.Stop(SIGTERM), 0);
@@ -129,7 +126,7 @@ TEST(ServoSimCliTest, SimulatorLinkAndBaudAreInTheBackend) {
   std::string backend;
   ASSERT_TRUE(sim.ReadLine(&backend, 10s));
   EXPECT_EQ(backend, "tty:" + link + "@115200");
-  ProcessResult r = Kinevis({"servo", backend, "--protocol", "1", "ping"});
+  ProcessResult r = RunKinevis({"servo", backend, "--protocol", "1", "ping"});
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(sim.Stop(SIGINT), 0);
 }

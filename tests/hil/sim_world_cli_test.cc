@@ -18,18 +18,14 @@
 namespace kinevis {
 namespace {
 
+using testing::RunKinevis;
+
 using namespace std::chrono_literals;
 using testing::BackgroundProcess;
 using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
 using testing::KinevisCliPath;
 using testing::ProcessResult;
-using testing::RunProcess;
-
-ProcessResult Kinevis(std::vector<std::string> args) {
-  args.insert(args.begin(), KinevisCliPath());
-  return RunProcess(args, 60s);
-}
 
 // The "position X rad" of every line of `kinevis drive ... status`.
 std::vector<double> Positions(const std::string& out) {
@@ -53,7 +49,7 @@ TEST(SimWorldCliTest, AHostProcessMovesTheSimulatedHexapodThroughTheSlcanAdapter
   // Where the legs are: the true readings at the home pose (s_j = q_j - q_j0, about 0.07 m).
   std::vector<std::string> status = drive;
   status.push_back("status");
-  ProcessResult before = Kinevis(status);
+  ProcessResult before = RunKinevis(status);
   ASSERT_EQ(before.exit_code, 0) << before.err;
   const std::vector<double> s0 = Positions(before.out);
   ASSERT_EQ(s0.size(), 6u) << before.out;
@@ -67,10 +63,10 @@ TEST(SimWorldCliTest, AHostProcessMovesTheSimulatedHexapodThroughTheSlcanAdapter
   for (const char* a : {"move", "--position", "0.1", "--duration", "1.0", "--tolerance", "2e-5"}) {
     move.push_back(a);
   }
-  ProcessResult moved = Kinevis(move);
+  ProcessResult moved = RunKinevis(move);
   EXPECT_EQ(moved.exit_code, 0) << moved.out << moved.err;
 
-  ProcessResult after = Kinevis(status);
+  ProcessResult after = RunKinevis(status);
   ASSERT_EQ(after.exit_code, 0) << after.err;
   const std::vector<double> s1 = Positions(after.out);
   ASSERT_EQ(s1.size(), 6u) << after.out;
@@ -101,11 +97,11 @@ TEST(SimWorldCliTest, AHostProcessMovesTheSimulatedDiamondOverRs485) {
                                          "1.0",
                                          "--tolerance",
                                          "1e-3"};
-  ProcessResult moved = Kinevis(move);
+  ProcessResult moved = RunKinevis(move);
   EXPECT_EQ(moved.exit_code, 0) << moved.out << moved.err;
   std::vector<std::string> status = drive;
   status.push_back("status");
-  ProcessResult after = Kinevis(status);
+  ProcessResult after = RunKinevis(status);
   ASSERT_EQ(after.exit_code, 0) << after.err;
   const std::vector<double> q = Positions(after.out);
   ASSERT_EQ(q.size(), 2u) << after.out;
@@ -124,17 +120,17 @@ TEST(SimWorldCliTest, ASecondProcessGrabsTheWorldsCameraFramesOverTheNetwork) {
   EXPECT_THAT(camera_line, ContainsRegex("^net:127\\.0\\.0\\.1:[0-9]+ hexapod-"));
   const std::string source = camera_line.substr(0, camera_line.find(' '));
   const std::string dir = "/tmp/kinevis_world_frames_" + std::to_string(::getpid());
-  const ProcessResult grab = Kinevis({"camera", "grab", source, "-n", "2", "-o", dir});
+  const ProcessResult grab = RunKinevis({"camera", "grab", source, "-n", "2", "-o", dir});
   ASSERT_EQ(grab.exit_code, 0) << grab.out << grab.err;
   EXPECT_THAT(grab.out, HasSubstr("# 2 frames"));
-  const ProcessResult info = Kinevis({"camera", "info", source});
+  const ProcessResult info = RunKinevis({"camera", "info", source});
   EXPECT_EQ(info.exit_code, 0) << info.err;
   EXPECT_EQ(world.Stop(SIGTERM), 0);
   std::filesystem::remove_all(dir);
 }
 
 TEST(SimWorldCliTest, ABadConfigIsAUsageError) {
-  ProcessResult r = Kinevis({"sim", "world", "hexapod", "--config", "/nonexistent.yaml"});
+  ProcessResult r = RunKinevis({"sim", "world", "hexapod", "--config", "/nonexistent.yaml"});
   EXPECT_EQ(r.exit_code, 2);
 }
 

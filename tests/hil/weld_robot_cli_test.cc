@@ -20,18 +20,14 @@
 namespace kinevis {
 namespace {
 
+using testing::RunKinevis;
+
 using namespace std::chrono_literals;
 using testing::BackgroundProcess;
 using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
 using testing::KinevisCliPath;
 using testing::ProcessResult;
-using testing::RunProcess;
-
-ProcessResult Kinevis(std::vector<std::string> args) {
-  args.insert(args.begin(), KinevisCliPath());
-  return RunProcess(args, 60s);
-}
 
 // The simulator as a process; backend() is its first line of output.
 class SimProcess {
@@ -58,7 +54,7 @@ std::string WriteFile(const std::string& name, const std::string& text) {
 TEST(WeldRobotCliTest, SimPrintsItsBackendAndExitsZeroOnSigterm) {
   SimProcess sim({"--listen", "127.0.0.1:0", "--buffer", "8"});
   EXPECT_THAT(sim.backend(), ContainsRegex("^modbus-tcp:127\\.0\\.0\\.1:[0-9]+$"));
-  ProcessResult status = Kinevis({"weld-robot", sim.backend(), "status"});
+  ProcessResult status = RunKinevis({"weld-robot", sim.backend(), "status"});
   ASSERT_EQ(status.exit_code, 0) << status.err;
   EXPECT_THAT(status.out, HasSubstr("motion: IDLE"));
   EXPECT_THAT(status.out, HasSubstr("alarm: NONE (0)"));
@@ -77,11 +73,11 @@ TEST(WeldRobotCliTest, SimEnforcesTheLimitsOfARobotDescription) {
                "limits: {min_deg: -30, max_deg: 30, speed_deg_s: 90}");
   const std::string robot = WriteFile("narrow.yaml", text);
   SimProcess sim({"--robot", robot});
-  ProcessResult inside = Kinevis(
+  ProcessResult inside = RunKinevis(
       {"weld-robot", sim.backend(), "move", "--joints", "20,0,50,0,0", "--duration", "0.5"});
   EXPECT_EQ(inside.exit_code, 0) << inside.err;
-  ProcessResult outside =
-      Kinevis({"weld-robot", sim.backend(), "move", "--joints", "40,0,50,0,0", "--duration", "1"});
+  ProcessResult outside = RunKinevis(
+      {"weld-robot", sim.backend(), "move", "--joints", "40,0,50,0,0", "--duration", "1"});
   EXPECT_NE(outside.exit_code, 0);
   EXPECT_THAT(outside.out + outside.err, HasSubstr("θ1"));
   EXPECT_EQ(sim.Stop(), 0);
@@ -93,15 +89,15 @@ TEST(WeldRobotCliTest, MoveStreamArcStopAndReset) {
   const std::string& b = sim.backend();
 
   ProcessResult move =
-      Kinevis({"weld-robot", b, "move", "--joints", "10,5,60,0,-5", "--duration", "0.3"});
+      RunKinevis({"weld-robot", b, "move", "--joints", "10,5,60,0,-5", "--duration", "0.3"});
   ASSERT_EQ(move.exit_code, 0) << move.err;
   EXPECT_THAT(move.out, HasSubstr("done: 1 segments executed"));
   EXPECT_THAT(move.out, HasSubstr("θ1 10.000°, θ2 5.000°, pz3 60.000 mm, θ4 0.000°, θ5 -5.000°"));
 
-  ProcessResult arc = Kinevis(
+  ProcessResult arc = RunKinevis(
       {"weld-robot", b, "arc", "on", "--current", "150", "--voltage", "22.5", "--wire-feed", "9"});
   ASSERT_EQ(arc.exit_code, 0) << arc.err;
-  ProcessResult status = Kinevis({"weld-robot", b, "status"});
+  ProcessResult status = RunKinevis({"weld-robot", b, "status"});
   EXPECT_THAT(status.out, HasSubstr("arc: enabled, off"));
   EXPECT_THAT(status.out, HasSubstr("weld: 150.0 A, 22.5 V, wire feed 9.00 m/min"));
 
@@ -113,33 +109,33 @@ TEST(WeldRobotCliTest, MoveStreamArcStopAndReset) {
            ",0,-5," + (i > 5 ? "1" : "0") + "\n";
   }
   const std::string path = WriteFile("bead.csv", csv);
-  ProcessResult stream = Kinevis({"weld-robot", b, "stream", path});
+  ProcessResult stream = RunKinevis({"weld-robot", b, "stream", path});
   ASSERT_EQ(stream.exit_code, 0) << stream.err;
   EXPECT_THAT(stream.out, HasSubstr("progress: 40/40 executed"));
   EXPECT_THAT(stream.out, HasSubstr("done: 40 segments executed"));
   EXPECT_THAT(stream.out, HasSubstr("θ1 12.000°, θ2 5.000°, pz3 64.000 mm"));
 
-  ProcessResult stop = Kinevis({"weld-robot", b, "stop"});
+  ProcessResult stop = RunKinevis({"weld-robot", b, "stop"});
   ASSERT_EQ(stop.exit_code, 0) << stop.err;
-  status = Kinevis({"weld-robot", b, "status"});
+  status = RunKinevis({"weld-robot", b, "status"});
   EXPECT_THAT(status.out, HasSubstr("arc: disabled, off"));
   EXPECT_THAT(status.out, HasSubstr("sequence: last accepted 41, last completed 41"));
 
   // Unchecked, the robot judges the target itself: an alarm, exit 3, named with the device.
-  ProcessResult bad = Kinevis(
+  ProcessResult bad = RunKinevis(
       {"weld-robot", b, "move", "--joints", "10,5,60,0,-130", "--duration", "60", "--no-check"});
   EXPECT_EQ(bad.exit_code, 3);
   EXPECT_THAT(bad.err, HasSubstr("kinevis weld-robot move: weld-robot (" + b + ")"));
   EXPECT_THAT(bad.err, HasSubstr("alarm TARGET OUT OF RANGE (code 1)"));
-  status = Kinevis({"weld-robot", b, "status"});
+  status = RunKinevis({"weld-robot", b, "status"});
   EXPECT_THAT(status.out, HasSubstr("motion: ALARM"));
   EXPECT_THAT(status.out, HasSubstr("alarm: TARGET OUT OF RANGE (1)"));
-  ProcessResult refused = Kinevis({"weld-robot", b, "arc", "on"});
+  ProcessResult refused = RunKinevis({"weld-robot", b, "arc", "on"});
   EXPECT_EQ(refused.exit_code, 3);
   EXPECT_THAT(refused.err, HasSubstr("reset`"));
-  ProcessResult reset = Kinevis({"weld-robot", b, "reset"});
+  ProcessResult reset = RunKinevis({"weld-robot", b, "reset"});
   ASSERT_EQ(reset.exit_code, 0) << reset.err;
-  status = Kinevis({"weld-robot", b, "status"});
+  status = RunKinevis({"weld-robot", b, "status"});
   EXPECT_THAT(status.out, HasSubstr("motion: IDLE"));
   EXPECT_EQ(sim.Stop(), 0);
 }
@@ -148,30 +144,31 @@ TEST(WeldRobotCliTest, BadInputExitsTwoNamingWhatIsWrong) {
   SimProcess sim({});
   const std::string& b = sim.backend();
   ProcessResult range =
-      Kinevis({"weld-robot", b, "move", "--joints", "175,0,50,0,0", "--duration", "10"});
+      RunKinevis({"weld-robot", b, "move", "--joints", "175,0,50,0,0", "--duration", "10"});
   EXPECT_EQ(range.exit_code, 2);
   EXPECT_THAT(range.err, HasSubstr("joint θ1 target 175.000° is outside its limits"));
-  ProcessResult count = Kinevis({"weld-robot", b, "move", "--joints", "1,2,3", "--duration", "1"});
+  ProcessResult count =
+      RunKinevis({"weld-robot", b, "move", "--joints", "1,2,3", "--duration", "1"});
   EXPECT_EQ(count.exit_code, 2);
   const std::string path = WriteFile("bad.csv",
                                      "duration_s,theta1_deg,theta2_deg,pz3_mm,"
                                      "theta4_deg,theta5_deg,arc\n1,0,0,50,0,0,0\n"
                                      "1,0,zero,50,0,0,0\n");
-  ProcessResult csv = Kinevis({"weld-robot", b, "stream", path});
+  ProcessResult csv = RunKinevis({"weld-robot", b, "stream", path});
   EXPECT_EQ(csv.exit_code, 2);
   EXPECT_THAT(csv.err, HasSubstr("\"" + path + "\" line 3: field 3 \"zero\" is not a number"));
   const std::string columns = WriteFile("columns.csv", "duration_s,theta1_deg\n1,0\n");
-  ProcessResult header = Kinevis({"weld-robot", b, "stream", columns});
+  ProcessResult header = RunKinevis({"weld-robot", b, "stream", columns});
   EXPECT_EQ(header.exit_code, 2);
   EXPECT_THAT(header.err, HasSubstr("the header needs"));
-  EXPECT_EQ(Kinevis({"sim", "weld-robot", "--listen", "nowhere"}).exit_code, 2);
+  EXPECT_EQ(RunKinevis({"sim", "weld-robot", "--listen", "nowhere"}).exit_code, 2);
   std::remove(path.c_str());
   std::remove(columns.c_str());
 }
 
 TEST(WeldRobotCliTest, AbsentRobotIsAHardwareError) {
   // A port nothing listens on: connection refused, exit 3, within the client's timeout.
-  ProcessResult r = Kinevis({"weld-robot", "modbus-tcp:127.0.0.1:1,timeout_ms=200", "status"});
+  ProcessResult r = RunKinevis({"weld-robot", "modbus-tcp:127.0.0.1:1,timeout_ms=200", "status"});
   EXPECT_FALSE(r.timed_out);
   EXPECT_EQ(r.exit_code, 3);
   EXPECT_THAT(r.err, HasSubstr("127.0.0.1:1"));
@@ -181,7 +178,7 @@ TEST(WeldRobotCliTest, RtuSimulatorOnAPtyWithALink) {
   const std::string link = "/tmp/kinevis_weld_cli_" + std::to_string(::getpid()) + "_tty";
   SimProcess sim({"--rtu", "--link", link});
   EXPECT_EQ(sim.backend(), "modbus-rtu:" + link + "@115200,8E1");
-  ProcessResult move = Kinevis(
+  ProcessResult move = RunKinevis(
       {"weld-robot", sim.backend(), "move", "--joints", "0,-3,55,2,0", "--duration", "0.2"});
   ASSERT_EQ(move.exit_code, 0) << move.err;
   EXPECT_THAT(move.out, HasSubstr("θ1 0.000°, θ2 -3.000°, pz3 55.000 mm, θ4 2.000°"));

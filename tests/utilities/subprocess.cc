@@ -152,6 +152,11 @@ int BackgroundProcess::Stop(int signal, std::chrono::milliseconds timeout) {
 
 std::string KinevisCliPath() { return KINEVIS_CLI_PATH; }
 
+ProcessResult RunKinevis(std::vector<std::string> args, std::chrono::milliseconds timeout) {
+  args.insert(args.begin(), KinevisCliPath());
+  return RunProcess(args, timeout);
+}
+
 bool HaveProgram(const std::string& name) {
   ProcessResult r = RunProcess({"sh", "-c", "command -v " + name}, std::chrono::seconds(5));
   return r.exit_code == 0;

@@ -46,6 +46,10 @@ class BackgroundProcess {
 // Path of the kinevis executable built with the tests.
 std::string KinevisCliPath();
 
+// Runs `kinevis ARGS...` (the executable built with the tests) to completion.
+ProcessResult RunKinevis(std::vector<std::string> args,
+                         std::chrono::milliseconds timeout = std::chrono::seconds(60));
+
 // True when the program is on PATH.
 bool HaveProgram(const std::string& name);
 
