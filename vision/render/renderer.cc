@@ -5,9 +5,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
+#include <type_traits>
 
 namespace kinevis::vision::render {
 namespace {
@@ -87,6 +89,46 @@ inline float NormalFromBits(const NormalTable& table, uint32_t bits) {
   return table.z[bin] + frac * (table.z[bin + 1] - table.z[bin]);
 }
 
+// Edge detection kernels over one row (section 2 of Render). Written as fixed 16-wide chunks on
+// restrict-qualified pointers so that the compiler vectorises them at -O2 (GCC's cheap cost model
+// refuses loops that need alias checks or a scalar epilogue); the tail is scalar.
+constexpr int kChunk = 16;
+
+// flags[u] = pixel u of row a differs from pixel u of row b (object, or radiance by > step).
+void DifferRows(const int* __restrict oa, const float* __restrict ra, const int* __restrict ob,
+                const float* __restrict rb, int count, float step, uint8_t* __restrict flags) {
+  int u = 0;
+  for (; u + kChunk <= count; u += kChunk) {
+    for (int k = 0; k < kChunk; ++k) {
+      flags[u + k] =
+          static_cast<uint8_t>((oa[u + k] != ob[u + k]) | (std::abs(ra[u + k] - rb[u + k]) > step));
+    }
+  }
+  for (; u < count; ++u) {
+    flags[u] = static_cast<uint8_t>((oa[u] != ob[u]) | (std::abs(ra[u] - rb[u]) > step));
+  }
+}
+
+// mask[u] |= a[u] | b[u] | c[u].
+void Or3Into(uint8_t* __restrict mask, const uint8_t* __restrict a, const uint8_t* __restrict b,
+             const uint8_t* __restrict c, int count) {
+  int u = 0;
+  for (; u + kChunk <= count; u += kChunk) {
+    for (int k = 0; k < kChunk; ++k) mask[u + k] |= a[u + k] | b[u + k] | c[u + k];
+  }
+  for (; u < count; ++u) mask[u] |= a[u] | b[u] | c[u];
+}
+
+// mask[u] |= a[u] | b[u].
+void Or2Into(uint8_t* __restrict mask, const uint8_t* __restrict a, const uint8_t* __restrict b,
+             int count) {
+  int u = 0;
+  for (; u + kChunk <= count; u += kChunk) {
+    for (int k = 0; k < kChunk; ++k) mask[u + k] |= a[u + k] | b[u + k];
+  }
+  for (; u < count; ++u) mask[u] |= a[u] | b[u];
+}
+
 }  // namespace
 
 std::string RenderOptions::Validate() const {
@@ -127,20 +169,40 @@ Renderer::Renderer(const CameraModel& camera, const RenderOptions& options)
   if (!message.empty()) throw std::invalid_argument(message);
 
   const int w = camera_.width(), h = camera_.height();
-  rays_.resize(static_cast<size_t>(w) * h);
+  // The pixel-centre rays, stored as directions plus origins — one origin when all rays share it
+  // (central models), so that the per-frame pass streams half the memory (96 MB → 48 MB for a
+  // 1616×1216 camera).
+  std::vector<Ray> rays(static_cast<size_t>(w) * h);
+  bool common_origin = true;
+  bool have_origin = false;
   for (int v = 0; v < h; ++v) {
     for (int u = 0; u < w; ++u) {
-      Ray& ray = rays_[static_cast<size_t>(v) * w + u];
+      Ray& ray = rays[static_cast<size_t>(v) * w + u];
       if (camera_.BackProject(Eigen::Vector2d(u, v), &ray) != ProjectionStatus::kOk) {
         ray.p_C_O.setZero();
         ray.d_C.setZero();
+        continue;
+      }
+      if (!have_origin) {
+        origin_ = ray.p_C_O;
+        have_origin = true;
+      } else if (ray.p_C_O != origin_) {
+        common_origin = false;
       }
     }
   }
+  directions_.resize(rays.size());
+  for (size_t i = 0; i < rays.size(); ++i) directions_[i] = rays[i].d_C;
+  if (!common_origin) {
+    origins_.resize(rays.size());
+    for (size_t i = 0; i < rays.size(); ++i) origins_[i] = rays[i].p_C_O;
+  }
+  rays.clear();
+  rays.shrink_to_fit();
 
   // Verify bilinear ray interpolation cell by cell at the cell centres (see the header). For a
   // non-central camera the re-projected point is taken 1 m along the ray.
-  cell_interpolable_.assign(rays_.size(), uint8_t{0});
+  cell_interpolable_.assign(directions_.size(), uint8_t{0});
   long cells = 0, interpolable = 0;
   for (int v = 0; v + 1 < h; ++v) {
     for (int u = 0; u + 1 < w; ++u) {
@@ -163,6 +225,62 @@ Renderer::Renderer(const CameraModel& camera, const RenderOptions& options)
   }
   interpolated_cell_fraction_ = cells > 0 ? static_cast<double>(interpolable) / cells : 0.0;
 
+  // Sub-sample table: offsets from the pixel centre, the 2×2 cell of pixel centres around each
+  // sample (rows v−1..v or v..v+1, likewise u) and its bilinear weights.
+  const int s = options_.supersampling;
+  const double inv_s = 1.0 / s;
+  subsamples_.resize(static_cast<size_t>(s) * s);
+  for (int b = 0; b < s; ++b) {
+    for (int a = 0; a < s; ++a) {
+      SubSample& sub = subsamples_[static_cast<size_t>(b) * s + a];
+      sub.dv = (b + 0.5) * inv_s - 0.5;  // (−½, ½)
+      sub.du = (a + 0.5) * inv_s - 0.5;
+      sub.cell_dv = sub.dv < 0.0 ? -1 : 0;
+      sub.cell_du = sub.du < 0.0 ? -1 : 0;
+      sub.cell_delta = sub.cell_dv * w + sub.cell_du;
+      const double fb = sub.dv < 0.0 ? 1.0 + sub.dv : sub.dv;
+      const double fa = sub.du < 0.0 ? 1.0 + sub.du : sub.du;
+      sub.w00 = (1 - fa) * (1 - fb);
+      sub.w10 = fa * (1 - fb);
+      sub.w01 = (1 - fa) * fb;
+      sub.w11 = fa * fb;
+    }
+  }
+  // Exact sub-sample rays of the interior pixels next to a cell that failed the interpolation
+  // check and with a ray in their 3×3 neighbourhood: for a catadioptric camera the band along
+  // the mirror rim, which is an edge in every frame (back-projecting its s² samples per frame cost
+  // ~1.4 ms of the soccer frame). Pixels with no ray around cannot become edge pixels (their
+  // neighbourhood is uniformly black background); image-border pixels are back-projected when
+  // needed.
+  if (s > 1) {
+    for (int v = 1; v + 1 < h; ++v) {
+      for (int u = 1; u + 1 < w; ++u) {
+        const size_t i = static_cast<size_t>(v) * w + u;
+        if (cell_interpolable_[i] && cell_interpolable_[i - 1] && cell_interpolable_[i - w] &&
+            cell_interpolable_[i - w - 1]) {
+          continue;
+        }
+        bool any_ray = false;
+        for (int dv = -1; dv <= 1; ++dv) {
+          for (int du = -1; du <= 1; ++du) {
+            any_ray = any_ray || directions_[i + dv * w + du].squaredNorm() > 0.0;
+          }
+        }
+        if (!any_ray) continue;
+        exact_pixels_.push_back(static_cast<int>(i));
+        for (const SubSample& sub : subsamples_) {
+          Ray ray;
+          if (camera_.BackProject(Eigen::Vector2d(u + sub.du, v + sub.dv), &ray) !=
+              ProjectionStatus::kOk) {
+            ray.p_C_O.setZero();
+            ray.d_C.setZero();
+          }
+          exact_rays_.push_back(ray);
+        }
+      }
+    }
+  }
+
   if (options_.blur_sigma_px > 0.0) {
     const int radius = static_cast<int>(std::ceil(3.0 * options_.blur_sigma_px));
     blur_kernel_.resize(2 * radius + 1);
@@ -183,10 +301,8 @@ bool Renderer::InterpolateRay(double pu, double pv, Ray* ray) const {
   const int u0 = static_cast<int>(fu0), v0 = static_cast<int>(fv0);
   const size_t i = static_cast<size_t>(v0) * w + u0;
   if (!cell_interpolable_[i]) return false;
-  const Ray& r00 = rays_[i];
-  const Ray& r10 = rays_[i + 1];
-  const Ray& r01 = rays_[i + w];
-  const Ray& r11 = rays_[i + w + 1];
+  const Ray r00 = PixelRay(i), r10 = PixelRay(i + 1), r01 = PixelRay(i + w);
+  const Ray r11 = PixelRay(i + w + 1);
   if (!IsValidRay(r00) || !IsValidRay(r10) || !IsValidRay(r01) || !IsValidRay(r11)) return false;
   const double a = pu - fu0, b = pv - fv0;
   const double w00 = (1 - a) * (1 - b), w10 = a * (1 - b), w01 = (1 - a) * b, w11 = a * b;
@@ -208,26 +324,33 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
   if (radiance_.size() != n) {  // first frame at this size: the only allocations
     radiance_.resize(n);
     object_.resize(n);
-    depth_.resize(n);
     edge_mask_.resize(n);
     edge_flags_.resize(4 * static_cast<size_t>(w));
     edge_pixels_.reserve(n);
     if (!blur_kernel_.empty()) blur_scratch_.resize(n);
   }
 
-  // 1. Coarse pass: one ray per pixel centre, from the cache.
-  for (size_t i = 0; i < n; ++i) {
-    const Hit hit = TraceOrBlack(scene, rays_[i]);
-    radiance_[i] = static_cast<float>(hit.radiance);
-    object_[i] = hit.object;
-    depth_[i] = static_cast<float>(hit.depth);
-  }
+  // 1. Coarse pass: one ray per pixel centre, from the cache. Depths are kept only for the ground
+  // truth, written straight into it.
+  float* depth = nullptr;
   if (truth != nullptr) {
     truth->width = w;
     truth->height = h;
-    truth->object.assign(object_.begin(), object_.end());
-    truth->depth.assign(depth_.begin(), depth_.end());
+    truth->depth.resize(n);
+    depth = truth->depth.data();
   }
+  const bool own_origins = !origins_.empty();
+  Ray ray;
+  ray.p_C_O = origin_;
+  for (size_t i = 0; i < n; ++i) {
+    ray.d_C = directions_[i];
+    if (own_origins) ray.p_C_O = origins_[i];
+    const Hit hit = TraceOrBlack(scene, ray);
+    radiance_[i] = static_cast<float>(hit.radiance);
+    object_[i] = hit.object;
+    if (depth != nullptr) depth[i] = static_cast<float>(hit.depth);
+  }
+  if (truth != nullptr) truth->object.assign(object_.begin(), object_.end());
 
   // 2. Edge pixels: a pixel whose 3×3 neighbourhood sees another object or a radiance jump.
   // Each unordered neighbour pair (right, down, down-right, down-left) is tested once and marks
@@ -238,41 +361,44 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
   uint8_t* vertical = horizontal + w;        // (u, v) from (u, v + 1)
   uint8_t* diag_right = vertical + w;        // (u, v) from (u + 1, v + 1)
   uint8_t* diag_left = diag_right + w;       // (u, v) from (u − 1, v + 1)
-  auto differ_rows = [&](const int* oa, const float* ra, const int* ob, const float* rb, int count,
-                         uint8_t* flags) {
-    for (int u = 0; u < count; ++u) {
-      flags[u] = static_cast<uint8_t>((oa[u] != ob[u]) | (std::abs(ra[u] - rb[u]) > step));
-    }
-  };
   std::fill(edge_mask_.begin(), edge_mask_.end(), uint8_t{0});
   for (int v = 0; v < h; ++v) {
     const size_t row = static_cast<size_t>(v) * w;
     const int* o = &object_[row];
     const float* r = &radiance_[row];
     uint8_t* mask = &edge_mask_[row];
+    // horizontal[u] for u < w − 1; horizontal[w − 1] = 0. Pixel u gets its own flag and that of
+    // u − 1 (mask[1..] |= horizontal[0..]).
     horizontal[w - 1] = 0;
-    differ_rows(o, r, o + 1, r + 1, w - 1, horizontal);
-    for (int u = 0; u < w; ++u) mask[u] |= horizontal[u];
-    for (int u = 1; u < w; ++u) mask[u] |= horizontal[u - 1];
+    DifferRows(o, r, o + 1, r + 1, w - 1, step, horizontal);
+    Or2Into(mask, horizontal, horizontal, w);
+    Or2Into(mask + 1, horizontal, horizontal, w - 1);  // mask[u] |= horizontal[u − 1]
     if (v + 1 == h) break;
     const int* o2 = o + w;
     const float* r2 = r + w;
     uint8_t* mask2 = mask + w;
-    differ_rows(o, r, o2, r2, w, vertical);
+    DifferRows(o, r, o2, r2, w, step, vertical);
     diag_right[w - 1] = 0;
-    differ_rows(o, r, o2 + 1, r2 + 1, w - 1, diag_right);
+    DifferRows(o, r, o2 + 1, r2 + 1, w - 1, step, diag_right);
     diag_left[0] = 0;
-    differ_rows(o + 1, r + 1, o2, r2, w - 1, diag_left + 1);
-    for (int u = 0; u < w; ++u) {
-      mask[u] |= vertical[u] | diag_right[u] | diag_left[u];
-      mask2[u] |= vertical[u];
-    }
-    for (int u = 1; u < w; ++u) mask2[u] |= diag_right[u - 1];
-    for (int u = 0; u + 1 < w; ++u) mask2[u] |= diag_left[u + 1];
+    DifferRows(o + 1, r + 1, o2, r2, w - 1, step, diag_left + 1);
+    Or3Into(mask, vertical, diag_right, diag_left, w);
+    Or2Into(mask2, vertical, vertical, w);
+    Or2Into(mask2 + 1, diag_right, diag_right, w - 1);    // mask2[u] |= diag_right[u − 1]
+    Or2Into(mask2, diag_left + 1, diag_left + 1, w - 1);  // mask2[u] |= diag_left[u + 1]
   }
   edge_pixels_.clear();
-  for (size_t i = 0; i < n; ++i) {
-    if (edge_mask_[i]) edge_pixels_.push_back(static_cast<int>(i));
+  size_t j = 0;
+  for (; j + 8 <= n; j += 8) {  // most of the mask is zero: skip it eight bytes at a time
+    uint64_t word;
+    std::memcpy(&word, &edge_mask_[j], sizeof(word));
+    if (word == 0) continue;
+    for (size_t k = j; k < j + 8; ++k) {
+      if (edge_mask_[k]) edge_pixels_.push_back(static_cast<int>(k));
+    }
+  }
+  for (; j < n; ++j) {
+    if (edge_mask_[j]) edge_pixels_.push_back(static_cast<int>(j));
   }
   last_edge_pixels_ = static_cast<int>(edge_pixels_.size());
 
@@ -287,44 +413,45 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
   // the limb conics here the sagitta over the 0.75 px hull is < 0.01 px.
   const int s = options_.supersampling;
   if (s > 1) {
-    const double inv_s = 1.0 / s;
     const bool central = camera_.IsCentral();
-    auto sample = [&](int u, int v, int a, int b) -> Hit {
-      const double dv = (b + 0.5) * inv_s - 0.5;  // offset from the pixel centre, (−½, ½)
-      const double du = (a + 0.5) * inv_s - 0.5;
-      // The 2×2 cell of pixel centres around the sample: rows v−1..v or v..v+1, likewise u.
-      const int cell_v = dv < 0.0 ? v - 1 : v;
-      const double fb = dv < 0.0 ? 1.0 + dv : dv;
-      const int cell_u = du < 0.0 ? u - 1 : u;
-      const double fa = du < 0.0 ? 1.0 + du : du;
+    // The ray of sub-sample k of pixel i = (u, v): bilinear in the verified cell around it (the
+    // weights depend on k only, tabulated in subsamples_), else the exact ray cached by the
+    // constructor, else back-projected now (image border).
+    auto sample = [&](int i, int u, int v, int k, const Ray* exact) -> Hit {
+      const SubSample& sub = subsamples_[k];
+      const int cell_u = u + sub.cell_du, cell_v = v + sub.cell_dv;
       Ray ray;
       if (cell_u >= 0 && cell_v >= 0 && cell_u + 1 < w && cell_v + 1 < h) {
-        const size_t c = static_cast<size_t>(cell_v) * w + cell_u;
+        const size_t c = static_cast<size_t>(i + sub.cell_delta);
         if (cell_interpolable_[c]) {  // all four rays valid, interpolation verified
-          const double w00 = (1 - fa) * (1 - fb), w10 = fa * (1 - fb);
-          const double w01 = (1 - fa) * fb, w11 = fa * fb;
-          const Ray& r00 = rays_[c];
-          const Ray& r10 = rays_[c + 1];
-          const Ray& r01 = rays_[c + w];
-          const Ray& r11 = rays_[c + w + 1];
-          const Eigen::Vector3d d = w00 * r00.d_C + w10 * r10.d_C + w01 * r01.d_C + w11 * r11.d_C;
+          const Eigen::Vector3d d = sub.w00 * directions_[c] + sub.w10 * directions_[c + 1] +
+                                    sub.w01 * directions_[c + w] + sub.w11 * directions_[c + w + 1];
           ray.d_C = d / d.norm();
-          ray.p_C_O = central ? r00.p_C_O
-                              : Eigen::Vector3d(w00 * r00.p_C_O + w10 * r10.p_C_O +
-                                                w01 * r01.p_C_O + w11 * r11.p_C_O);
+          ray.p_C_O = central
+                          ? Origin(c)
+                          : Eigen::Vector3d(sub.w00 * Origin(c) + sub.w10 * Origin(c + 1) +
+                                            sub.w01 * Origin(c + w) + sub.w11 * Origin(c + w + 1));
           return scene.Trace(ray);
         }
+        if (exact != nullptr) return TraceOrBlack(scene, exact[k]);
       }
-      if (camera_.BackProject(Eigen::Vector2d(u + du, v + dv), &ray) != ProjectionStatus::kOk) {
+      if (camera_.BackProject(Eigen::Vector2d(u + sub.du, v + sub.dv), &ray) !=
+          ProjectionStatus::kOk) {
         ray.d_C.setZero();  // no ray: black background (see TraceOrBlack)
       }
       return TraceOrBlack(scene, ray);
     };
     const int last = s - 1;
+    const int k10 = last, k01 = last * s, k11 = last * s + last;
+    size_t next_exact = 0;  // both lists ascend: walk them together
     for (const int i : edge_pixels_) {
       const int u = i % w, v = i / w;
-      const Hit c00 = sample(u, v, 0, 0), c10 = sample(u, v, last, 0);
-      const Hit c01 = sample(u, v, 0, last), c11 = sample(u, v, last, last);
+      while (next_exact < exact_pixels_.size() && exact_pixels_[next_exact] < i) ++next_exact;
+      const Ray* exact = next_exact < exact_pixels_.size() && exact_pixels_[next_exact] == i
+                             ? &exact_rays_[next_exact * s * s]
+                             : nullptr;
+      const Hit c00 = sample(i, u, v, 0, exact), c10 = sample(i, u, v, k10, exact);
+      const Hit c01 = sample(i, u, v, k01, exact), c11 = sample(i, u, v, k11, exact);
       const double lo = std::min({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
       const double hi = std::max({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
       const double corners = c00.radiance + c10.radiance + c01.radiance + c11.radiance;
@@ -338,7 +465,7 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
         const bool edge_row = b == 0 || b == last;
         for (int a = 0; a < s; ++a) {
           if (edge_row && (a == 0 || a == last)) continue;  // a corner, traced above
-          sum += sample(u, v, a, b).radiance;
+          sum += sample(i, u, v, b * s + a, exact).radiance;
         }
       }
       radiance_[i] = static_cast<float>(sum / (s * s));
@@ -381,27 +508,49 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
   const uint64_t stream = Mix64(options_.seed ^ Mix64(frame_index + 0x632be59bd9b4e019ULL));
   const NormalTable& normals = Normals();
   const uint64_t pairs_per_row = (static_cast<uint64_t>(w) + 1) / 2;
-  for (int v = 0; v < h; ++v) {
+  // One row, with the optional effects chosen at compile time (no per-pixel branches). One 64-bit
+  // hash of (seed, frame, pixel pair) gives the deviates of two pixels.
+  auto finish_row = [&](int v, auto with_vignetting, auto with_noise) {
     const float dv2 = static_cast<float>((v - cv) * (v - cv));
     const float* src = &radiance_[static_cast<size_t>(v) * w];
     uint8_t* dst = out.data + static_cast<size_t>(v) * out.stride;
-    // One 64-bit hash of (seed, frame, pixel pair) gives the deviates of two pixels.
-    uint64_t bits = 0;
-    for (int u = 0; u < w; ++u) {
+    const uint64_t row_stream = stream + static_cast<uint64_t>(v) * pairs_per_row;
+    auto pixel = [&](int u, uint32_t half) {
       float value = src[u] * gain;
-      if (vignetting > 0.0f) {
+      if constexpr (decltype(with_vignetting)::value) {
         const float du = static_cast<float>(u - cu);
         value *= 1.0f - vignetting * (du * du + dv2);
       }
-      if (sigma > 0.0f) {
-        if ((u & 1) == 0)
-          bits = Mix64(stream + static_cast<uint64_t>(v) * pairs_per_row + (u >> 1));
-        const uint32_t half =
-            (u & 1) == 0 ? static_cast<uint32_t>(bits >> 32) : static_cast<uint32_t>(bits);
-        value += sigma * NormalFromBits(normals, half);
-      }
-      value = std::clamp(value, 0.0f, 255.0f);
+      if constexpr (decltype(with_noise)::value) value += sigma * NormalFromBits(normals, half);
+      value = std::min(std::max(value, 0.0f), 255.0f);  // = std::clamp, without branches
       dst[u] = static_cast<uint8_t>(value + 0.5f);
+    };
+    int u = 0;
+    for (; u + 1 < w; u += 2) {
+      uint64_t bits = 0;
+      if constexpr (decltype(with_noise)::value) bits = Mix64(row_stream + (u >> 1));
+      pixel(u, static_cast<uint32_t>(bits >> 32));
+      pixel(u + 1, static_cast<uint32_t>(bits));
+    }
+    if (u < w) {
+      uint64_t bits = 0;
+      if constexpr (decltype(with_noise)::value) bits = Mix64(row_stream + (u >> 1));
+      pixel(u, static_cast<uint32_t>(bits >> 32));
+    }
+  };
+  const std::true_type yes;
+  const std::false_type no;
+  for (int v = 0; v < h; ++v) {
+    if (vignetting > 0.0f) {
+      if (sigma > 0.0f) {
+        finish_row(v, yes, yes);
+      } else {
+        finish_row(v, yes, no);
+      }
+    } else if (sigma > 0.0f) {
+      finish_row(v, no, yes);
+    } else {
+      finish_row(v, no, no);
     }
   }
 }

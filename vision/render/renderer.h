@@ -110,19 +110,43 @@ class Renderer {
  private:
   const CameraModel& camera_;
   RenderOptions options_;
-  std::vector<Ray> rays_;        // per pixel centre; direction zero where BackProject failed
+  // The pixel-centre rays: directions (zero where BackProject failed) and origins, one for all
+  // pixels (origins_ empty) when they share it, as for every central model.
+  std::vector<Eigen::Vector3d> directions_;
+  std::vector<Eigen::Vector3d> origins_;
+  Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
   std::vector<float> radiance_;  // scratch
   std::vector<int> object_;      // scratch
   std::vector<float> blur_scratch_;
-  std::vector<float> depth_;         // scratch: depth at pixel centres (for the ground truth)
-  std::vector<uint8_t> edge_mask_;   // scratch: 1 where the pixel is supersampled
-  std::vector<int> edge_pixels_;     // scratch: indices of the supersampled pixels
-  std::vector<uint8_t> edge_flags_;  // scratch: 4 rows of neighbour-difference flags
-  std::vector<float> blur_kernel_;   // normalised Gaussian taps, radius ceil(3σ)
+  std::vector<uint8_t> edge_mask_;          // scratch: 1 where the pixel is supersampled
+  std::vector<int> edge_pixels_;            // scratch: indices of the supersampled pixels
+  std::vector<uint8_t> edge_flags_;         // scratch: 4 rows of neighbour-difference flags
+  std::vector<float> blur_kernel_;          // normalised Gaussian taps, radius ceil(3σ)
   std::vector<uint8_t> cell_interpolable_;  // per 2×2 cell with top-left pixel (u, v)
+  // Per sub-sample k = b·s + a of the s×s grid: offset (du, dv) from the pixel centre, the cell
+  // of pixel centres around it relative to the pixel (cell_du, cell_dv ∈ {−1, 0}; cell_delta the
+  // same as an index offset) and the bilinear weights of its four corner rays.
+  struct SubSample {
+    double du = 0.0, dv = 0.0;
+    int cell_du = 0, cell_dv = 0, cell_delta = 0;
+    double w00 = 0.0, w10 = 0.0, w01 = 0.0, w11 = 0.0;
+  };
+  std::vector<SubSample> subsamples_;
+  // Pixels (ascending indices) whose sub-sample rays cannot all be interpolated, with their s²
+  // exact rays (direction zero where BackProject failed), computed once by the constructor.
+  std::vector<int> exact_pixels_;
+  std::vector<Ray> exact_rays_;
   double max_interpolation_error_px_ = 0.0;
   double interpolated_cell_fraction_ = 0.0;
   int last_edge_pixels_ = 0;
+
+  const Eigen::Vector3d& Origin(size_t i) const { return origins_.empty() ? origin_ : origins_[i]; }
+  Ray PixelRay(size_t i) const {
+    Ray ray;
+    ray.p_C_O = Origin(i);
+    ray.d_C = directions_[i];
+    return ray;
+  }
 
   // Bilinear interpolation of the cached rays at sub-pixel position (pu, pv) if the cell is
   // marked interpolable (used to verify the cells in the constructor).

@@ -12,6 +12,7 @@
 
 #include "vision/camera/camera_file.h"
 #include "vision/camera/tsai_camera.h"
+#include "vision/render/primitives.h"
 
 namespace kinevis::vision::render {
 namespace {
@@ -351,6 +352,104 @@ TEST(LaserScene, PitDeviatesTheStripeByTheGeometricAmount) {
   // The centre of gravity sees the pit's slopes asymmetrically (the stripe's profile across the
   // pit is skewed), measured 0.04 px (2 %) short of the peak's exact deviation.
   EXPECT_NEAR(measured, predicted, 0.1);
+}
+
+// The first root of z_S − f(x_S, y_S) along a ray by brute force: march with steps of 10 µm of
+// ray length (far below any pit's σ) through the slab |z_S| ≤ 3 cm, then bisect to 1e-14 m; only
+// roots over the extent count. Independent of the scene's analytic quadric, pit culling and
+// bracketing (issue 5's speed-up).
+double ReferenceHeightfieldHit(const LaserScene& scene, const Ray& ray_C) {
+  const LaserSceneParameters& p = scene.parameters();
+  const Eigen::Isometry3d X_SC = p.X_CS.inverse();
+  const Eigen::Vector3d o = X_SC * ray_C.p_C_O, d = X_SC.linear() * ray_C.d_C;
+  auto g = [&](double t) {
+    const Eigen::Vector3d q = o + t * d;
+    return q.z() - scene.Height(q.x(), q.y());
+  };
+  double t0 = (0.03 - o.z()) / d.z(), t1 = (-0.03 - o.z()) / d.z();
+  if (t0 > t1) std::swap(t0, t1);
+  t0 = std::max(t0, 1e-9);
+  const double step = 1e-5;
+  double ta = t0, ga = g(ta);
+  for (double tb = t0 + step; ta < t1; tb += step) {
+    const double gb = g(tb);
+    if ((ga > 0.0) != (gb > 0.0)) {
+      double a = ta, b = tb;
+      while (b - a > 1e-14) {
+        const double c = 0.5 * (a + b);
+        ((g(c) > 0.0) == (ga > 0.0) ? a : b) = c;
+      }
+      const Eigen::Vector3d q = o + a * d;
+      if (std::abs(q.x()) <= p.half_extent.x() && std::abs(q.y()) <= p.half_extent.y()) return a;
+    }
+    ta = tb;
+    ga = gb;
+  }
+  return kNoHit;
+}
+
+TEST(LaserScene, HeightfieldHitEqualsABruteForceMarchNearAndFarFromPits) {
+  // The bench's blade (curved, two pits of different depth and width), rays from around the
+  // scanner to random blade points — a third of them within 3σ of a pit — and some beyond the
+  // blade's edge.
+  LaserSceneParameters p;
+  p.curvature_xx = 2.0;
+  p.curvature_xy = -0.7;
+  p.pits = {CavitationPit{Eigen::Vector2d(0.01, 0.0), 1.0e-3, 3e-3},
+            CavitationPit{Eigen::Vector2d(-0.02, 0.015), 0.5e-3, 2e-3}};
+  const LaserScene scene(p);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  int hits = 0, near_pits = 0, misses = 0, worst_index = -1;
+  double worst = 0.0, worst_normal = 0.0;
+  for (int k = 0; k < 600; ++k) {
+    Eigen::Vector2d xy(1.15 * p.half_extent.x() * unit(rng), 1.15 * p.half_extent.y() * unit(rng));
+    if (k % 3 == 0) {
+      const CavitationPit& pit = p.pits[k % 2];
+      xy = pit.centre_S + 3.0 * pit.sigma * Eigen::Vector2d(unit(rng), unit(rng));
+      ++near_pits;
+    }
+    const Eigen::Vector3d target_C =
+        p.X_CS * Eigen::Vector3d(xy.x(), xy.y(), scene.Height(xy.x(), xy.y()));
+    Ray ray;
+    ray.p_C_O = Eigen::Vector3d(0.05 * unit(rng), 0.05 * unit(rng), 0.0);
+    ray.d_C = (target_C - ray.p_C_O).normalized();
+    const double expected = ReferenceHeightfieldHit(scene, ray);
+    int object = -1;
+    Eigen::Vector3d n_C;
+    const double t = scene.IntersectSurface(ray, &object, &n_C);
+    if (expected == kNoHit) {
+      ++misses;
+      EXPECT_EQ(t, kNoHit) << k;
+      EXPECT_EQ(object, kLaserBackground) << k;
+      continue;
+    }
+    ++hits;
+    ASSERT_NE(t, kNoHit) << k;
+    EXPECT_EQ(object, kLaserSurface);
+    if (std::abs(t - expected) > worst) {
+      worst = std::abs(t - expected);
+      worst_index = k;
+    }
+    // The normal: −∇(z − f) normalised, by central differences of Height() (step 1 µm).
+    const Eigen::Vector3d p_S = p.X_CS.inverse() * (ray.p_C_O + t * ray.d_C);
+    const double e = 1e-6;
+    const double fx =
+        (scene.Height(p_S.x() + e, p_S.y()) - scene.Height(p_S.x() - e, p_S.y())) / (2 * e);
+    const double fy =
+        (scene.Height(p_S.x(), p_S.y() + e) - scene.Height(p_S.x(), p_S.y() - e)) / (2 * e);
+    Eigen::Vector3d n_fd = p.X_CS.linear() * Eigen::Vector3d(-fx, -fy, 1.0).normalized();
+    if (n_fd.dot(ray.d_C) > 0.0) n_fd = -n_fd;
+    worst_normal = std::max(worst_normal, (n_C - n_fd).norm());
+  }
+  std::printf(
+      "heightfield: %d hits (%d aimed at pits), %d misses; worst |t - t_ref| = %.2e m "
+      "(ray %d), worst normal error %.2e\n",
+      hits, near_pits, misses, worst, worst_index, worst_normal);
+  EXPECT_LT(worst, 1e-11);
+  EXPECT_LT(worst_normal, 1e-6);
+  EXPECT_GT(hits, 450);
+  EXPECT_GT(misses, 20);
 }
 
 TEST(LaserScene, GaugeBlockShadowsTheBoardFromTheRotatingLaser) {

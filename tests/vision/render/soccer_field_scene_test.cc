@@ -3,11 +3,14 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <cstdio>
+#include <random>
 #include <vector>
 
 #include "vision/camera/hyperbolic_mirror_camera.h"
+#include "vision/render/primitives.h"
 
 namespace kinevis::vision::render {
 namespace {
@@ -54,6 +57,140 @@ void CheckLinesAgainstGroundMap(const HyperbolicMirrorCamera& camera, const Socc
   }
   EXPECT_EQ(mismatches, 0);
   EXPECT_LT(worst_point, 1.0);
+}
+
+// Trace() as first written (issue 5), without the culls, the grid of lines and the specialised
+// cylinder tests that make it fast: every post, the lens body and disc, the robot body and disc
+// and the ground by the generic primitives, nearest wins (ties to the first), the ground point
+// classified by ClassifyGround().
+Hit ReferenceTrace(const SoccerFieldScene& scene, const Ray& ray_C, double* line_distance) {
+  const SoccerFieldSceneParameters& p = scene.parameters();
+  const Eigen::Isometry3d& X_CG = scene.X_CG();
+  const Eigen::Isometry3d X_GC = X_CG.inverse();
+  *line_distance = kNoHit;
+  const double to_mirror = ray_C.p_C_O.norm();
+  Ray incoming;
+  incoming.d_C = ray_C.p_C_O / to_mirror;
+  Eigen::Vector3d bottom, top;
+  for (int i = 0; i < p.post_count; ++i) {
+    scene.PostAxis(i, &bottom, &top);
+    if (IntersectCylinder(incoming, bottom, top, p.post_radius) < to_mirror) {
+      return Hit{p.post_radiance, kFieldMirrorPost, 0.0};
+    }
+  }
+  double best = kNoHit;
+  int object = kFieldSurroundings;
+  auto consider = [&](double t, int id) {
+    if (t < best) {
+      best = t;
+      object = id;
+    }
+  };
+  for (int i = 0; i < p.post_count; ++i) {
+    scene.PostAxis(i, &bottom, &top);
+    consider(IntersectCylinder(ray_C, bottom, top, p.post_radius), kFieldMirrorPost);
+  }
+  const double pinhole_height = (X_GC * Eigen::Vector3d::Zero()).z();
+  const Eigen::Vector3d lens_bottom(0.0, -(pinhole_height - p.body_height), 0.0);
+  consider(IntersectCylinder(ray_C, lens_bottom, Eigen::Vector3d::Zero(), p.lens_radius),
+           kFieldLensBody);
+  consider(IntersectDisc(ray_C, Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitY(), p.lens_radius),
+           kFieldLensBody);
+  const Eigen::Vector3d z_G = X_CG.linear().col(2);
+  const Eigen::Vector3d body_bottom = X_CG.translation();
+  const Eigen::Vector3d body_top = X_CG * Eigen::Vector3d(0.0, 0.0, p.body_height);
+  consider(IntersectCylinder(ray_C, body_bottom, body_top, p.body_radius), kFieldRobotBody);
+  consider(IntersectDisc(ray_C, body_top, z_G, p.body_radius), kFieldRobotBody);
+  const double t_ground = IntersectPlane(ray_C, body_bottom, z_G);
+  const bool ground_nearest = t_ground < best;
+  consider(t_ground, kFieldCarpet);
+  Hit hit{0.0, object, best};
+  if (ground_nearest) {
+    const Eigen::Vector3d p_G = X_GC * (ray_C.p_C_O + t_ground * ray_C.d_C);
+    const FieldPoint field = scene.ClassifyGround(p_G.head<2>());
+    *line_distance = field.line_distance;
+    hit.object = !field.on_carpet ? kFieldFloor : field.on_line ? kFieldLine : kFieldCarpet;
+  }
+  switch (hit.object) {
+    case kFieldMirrorPost:
+      hit.radiance = p.post_radiance;
+      break;
+    case kFieldLensBody:
+      hit.radiance = p.lens_radiance;
+      break;
+    case kFieldRobotBody:
+      hit.radiance = p.body_radiance;
+      break;
+    case kFieldSurroundings:
+      hit.radiance = p.surroundings_radiance;
+      break;
+    case kFieldFloor:
+      hit.radiance = p.floor_radiance;
+      break;
+    case kFieldLine:
+      hit.radiance = p.line_radiance;
+      break;
+    default:
+      hit.radiance = p.carpet_radiance;
+      break;
+  }
+  return hit;
+}
+
+// Random sub-pixel rays over the whole mirror (posts, lens, body, lines, horizon included).
+void CheckTraceAgainstReference(const HyperbolicMirrorCamera& camera, const SoccerFieldScene& scene,
+                                int samples) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-0.5, camera.width() - 0.5);
+  std::uniform_real_distribution<double> v(-0.5, camera.height() - 0.5);
+  const double half_width = 0.5 * scene.parameters().line_width;
+  int traced = 0, different = 0, undecidable = 0;
+  std::array<int, 8> seen{};
+  for (int k = 0; k < samples; ++k) {
+    Ray ray;
+    if (camera.BackProject(Eigen::Vector2d(u(rng), v(rng)), &ray) != ProjectionStatus::kOk) {
+      continue;
+    }
+    ++traced;
+    double line_distance = kNoHit;
+    const Hit expected = ReferenceTrace(scene, ray, &line_distance);
+    const Hit hit = scene.Trace(ray);
+    ++seen[hit.object];
+    // The fast line test compares squared distances: a point within rounding of a line's border
+    // may go either way.
+    if (std::abs(line_distance - half_width) < 1e-12) {
+      ++undecidable;
+      continue;
+    }
+    if (hit.object != expected.object || hit.radiance != expected.radiance ||
+        hit.depth != expected.depth) {
+      ++different;
+    }
+  }
+  EXPECT_EQ(different, 0);
+  EXPECT_LT(undecidable, 3);
+  EXPECT_GT(traced, samples / 2);
+  // Every object but the surroundings (this mirror sees nothing above the horizon).
+  for (int object :
+       {kFieldCarpet, kFieldLine, kFieldFloor, kFieldRobotBody, kFieldLensBody, kFieldMirrorPost}) {
+    EXPECT_GT(seen[object], 20) << "object " << object;
+  }
+}
+
+TEST(SoccerFieldScene, FastTraceEqualsTheUnculledReference) {
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  SoccerFieldSceneParameters p;
+  p.robot_x = 6.2;  // near a goal area and the side line, so that every object is seen
+  p.robot_y = 4.9;
+  p.robot_heading = 0.4;
+  CheckTraceAgainstReference(camera, SoccerFieldScene(camera, p), 200000);
+  // A tilted mirror: the robot body's axis is no longer y_C (the generic cylinder path).
+  HyperbolicMirrorParameters mp = HyperbolicMirrorParameters::Seed000Lens4mm();
+  mp.ground_rho = 0.02;
+  mp.ground_theta = -0.015;
+  const HyperbolicMirrorCamera tilted(mp);
+  p.robot_heading = -2.5;
+  CheckTraceAgainstReference(tilted, SoccerFieldScene(tilted, p), 200000);
 }
 
 TEST(SoccerFieldScene, LinePixelsAreWhereTheGroundMapPutsLines) {

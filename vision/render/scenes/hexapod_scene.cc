@@ -4,6 +4,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 #include <sstream>
 #include <stdexcept>
 
@@ -214,10 +217,24 @@ Hit HexapodScene::Trace(const Ray& ray_C) const {
   unsigned inside = (1u << kCones) - 1;
   if (central_at_origin) {
     inside = 0;
+#if defined(__SSE2__)
+    // Two cones per instruction (the same products and sums as the scalar loop below, so the
+    // same bits); kCones is even and the arrays 16-byte aligned. Issue 5: a third of the time.
+    static_assert(kCones % 2 == 0, "cones are tested in pairs");
+    const __m128d dx = _mm_set1_pd(d.x()), dy = _mm_set1_pd(d.y()), dz = _mm_set1_pd(d.z());
+    for (int k = 0; k < kCones; k += 2) {
+      const __m128d c = _mm_add_pd(_mm_add_pd(_mm_mul_pd(dx, _mm_load_pd(&cone_x_[k])),
+                                              _mm_mul_pd(dy, _mm_load_pd(&cone_y_[k]))),
+                                   _mm_mul_pd(dz, _mm_load_pd(&cone_z_[k])));
+      inside |= static_cast<unsigned>(_mm_movemask_pd(_mm_cmpge_pd(c, _mm_load_pd(&cone_cos_[k]))))
+                << k;
+    }
+#else
     for (int k = 0; k < kCones; ++k) {
       const double c = d.x() * cone_x_[k] + d.y() * cone_y_[k] + d.z() * cone_z_[k];
       inside |= static_cast<unsigned>(c >= cone_cos_[k]) << k;
     }
+#endif
     if (inside == 0) return Hit{options_.background_radiance, 0, kNoHit};
   }
   for (int j = 0; j < robots::kHexapodLegs; ++j) {
@@ -238,7 +255,9 @@ Hit HexapodScene::Trace(const Ray& ray_C) const {
       const double disc = b * b - a_coef * leg.c0;
       if (disc < 0.0) continue;
       const double s = std::sqrt(disc);
-      for (const double t : {(-b - s) / a_coef, (-b + s) / a_coef}) {
+      // The near root first; the far one (a second division) only when the near one fails.
+      for (int root = 0; root < 2; ++root) {
+        const double t = (root == 0 ? -b - s : -b + s) / a_coef;
         if (!(t > 1e-9) || !(t < t_best)) continue;
         const double along = leg.along0 + t * dw;
         if (along < 0.0 || along > leg.length) continue;

@@ -1,6 +1,7 @@
 #include "vision/render/scenes/laser_scene.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -118,6 +119,9 @@ LaserScene::LaserScene(const LaserSceneParameters& parameters) : parameters_(par
   planes_[static_cast<int>(LaserId::kRotating)] =
       parameters.scanner.RotatingPlane(parameters.rotating_cot_theta_y);
   X_SC_ = parameters.X_CS.inverse();
+  R_SC_ = X_SC_.linear();
+  p_S_C_ = X_SC_.translation();
+  R_CS_ = parameters.X_CS.linear();
   const double hx = parameters.half_extent.x(), hy = parameters.half_extent.y();
   if (parameters.surface == LaserSurfaceKind::kBlade) {
     height_bound_ = 0.5 * std::abs(parameters.curvature_xx) * hx * hx +
@@ -127,6 +131,9 @@ LaserScene::LaserScene(const LaserSceneParameters& parameters) : parameters_(par
     for (const CavitationPit& pit : parameters.pits) {
       pit_depth_sum_ += pit.depth;
       min_pit_sigma_ = std::min(min_pit_sigma_, pit.sigma);
+      // h exp(−r² / (2σ²)) < kNegligiblePitHeight beyond r² = 2σ² ln(h / kNegligiblePitHeight).
+      pit_cutoff2_.push_back(2.0 * pit.sigma * pit.sigma *
+                             std::log(std::max(pit.depth / kNegligiblePitHeight, 1.0)));
     }
   }
   X_CB_ = parameters.X_CS *
@@ -158,80 +165,210 @@ double LaserScene::IntersectHeightfield(const Ray& ray_S, Eigen::Vector3d* n_S) 
     if (o.z() < z_lo || o.z() > z_hi) return kNoHit;
     t1 = 4.0 * (hx + hy) + std::abs(o.x()) + std::abs(o.y());
   } else {
-    double ta = (z_hi - o.z()) / d.z(), tb = (z_lo - o.z()) / d.z();
+    const double inverse_dz = 1.0 / d.z();
+    double ta = (z_hi - o.z()) * inverse_dz, tb = (z_lo - o.z()) * inverse_dz;
     if (ta > tb) std::swap(ta, tb);
     t0 = std::max(t0, ta);
     t1 = tb;
   }
   if (!(t1 > t0)) return kNoHit;
-  auto g = [&](double t) {
-    const Eigen::Vector3d p = o + t * d;
-    return p.z() - Height(p.x(), p.y());
-  };
-  // March so that no pit can be stepped over: horizontal travel per step ≤ σ_min / 4.
-  const double horizontal = std::hypot(d.x(), d.y());
-  int steps = 8;
-  if (!parameters_.pits.empty() && horizontal > 0.0) {
-    const double wanted = (t1 - t0) * horizontal / (0.25 * min_pit_sigma_);
-    steps = std::max(steps, static_cast<int>(std::min(std::ceil(wanted), 4096.0)));
+
+  // g(t) = z − f along the ray splits into the pit-free part, a quadratic in t,
+  //   g_q(t) = z − q = a t² + b t + c   (q the curvature terms of f),
+  // plus Σ_k h_k exp(−|p(t) − c_k|² / (2 σ_k²)) ≥ 0 from the pits. Issue 5's speed-up: a pit
+  // whose closest approach to this ray's stretch through the slab keeps its term below
+  // kNegligiblePitHeight everywhere there is left out (pit_cutoff2_), so most rays meet just the
+  // quadric, analytically. With pits left, g_q ≤ g ≤ g_q + H (H the depths of the pits kept): the
+  // first root lies between the first root of g_q and that of g_q + H, and only that stretch is
+  // marched and refined (regula falsi) as before.
+  const double kxx = parameters_.curvature_xx, kyy = parameters_.curvature_yy;
+  const double kxy = parameters_.curvature_xy;
+  const double ox = o.x(), oy = o.y(), dx = d.x(), dy = d.y();
+  const double qa = -(0.5 * kxx * dx * dx + 0.5 * kyy * dy * dy + kxy * dx * dy);
+  const double qb = d.z() - (kxx * ox * dx + kyy * oy * dy + kxy * (ox * dy + oy * dx));
+  const double qc = o.z() - (0.5 * kxx * ox * ox + 0.5 * kyy * oy * oy + kxy * ox * oy);
+
+  std::array<int, 64> active;
+  int active_count = 0;
+  double active_depth = 0.0, active_min_sigma = 1.0;
+  const double h2 = dx * dx + dy * dy;
+  for (int k = 0; k < static_cast<int>(parameters_.pits.size()); ++k) {
+    const CavitationPit& pit = parameters_.pits[k];
+    // Closest approach of the stretch [t0, t1] to the pit's centre, without a division: the
+    // unconstrained one, t* = −(c·d)/|d_xy|², when t0 ≤ t* ≤ t1, else the nearer end.
+    const double cx = ox - pit.centre_S.x(), cy = oy - pit.centre_S.y();
+    const double cd = -(cx * dx + cy * dy), c2 = cx * cx + cy * cy;
+    double distance2;
+    if (cd <= t0 * h2) {
+      const double ex = cx + t0 * dx, ey = cy + t0 * dy;
+      distance2 = ex * ex + ey * ey;
+      if (distance2 > pit_cutoff2_[k]) continue;
+    } else if (cd >= t1 * h2) {
+      const double ex = cx + t1 * dx, ey = cy + t1 * dy;
+      distance2 = ex * ex + ey * ey;
+      if (distance2 > pit_cutoff2_[k]) continue;
+    } else if (c2 * h2 - cd * cd > pit_cutoff2_[k] * h2) {
+      continue;
+    }
+    active[active_count++] = k;
+    active_depth += pit.depth;
+    active_min_sigma = std::min(active_min_sigma, pit.sigma);
   }
-  const double dt = (t1 - t0) / steps;
-  double ta = t0, ga = g(ta);
-  for (int i = 1; i <= steps; ++i) {
-    const double tb = t0 + i * dt;
-    const double gb = g(tb);
-    if ((ga > 0.0) != (gb > 0.0)) {
-      // Illinois regula falsi on [ta, tb].
-      double a = ta, fa = ga, b = tb, fb = gb;
-      int side = 0;
-      for (int k = 0; k < 100 && b - a > 1e-13; ++k) {
-        const double c = (a * fb - b * fa) / (fb - fa);
-        const double fc = g(c);
-        if ((fc > 0.0) == (fa > 0.0)) {
-          a = c;
-          fa = fc;
-          if (side == -1) fb *= 0.5;
-          side = -1;
-        } else {
-          b = c;
-          fb = fc;
-          if (side == 1) fa *= 0.5;
-          side = 1;
-        }
-        if (fc == 0.0) {
-          a = b = c;
-          break;
-        }
-      }
-      const double t = 0.5 * (a + b);
-      const Eigen::Vector3d p = o + t * d;
-      if (std::abs(p.x()) <= hx && std::abs(p.y()) <= hy) {
-        if (n_S != nullptr) {
-          // ∇f by the analytic derivative of each term.
-          double fx = parameters_.curvature_xx * p.x() + parameters_.curvature_xy * p.y();
-          double fy = parameters_.curvature_yy * p.y() + parameters_.curvature_xy * p.x();
-          for (const CavitationPit& pit : parameters_.pits) {
-            const double dx = p.x() - pit.centre_S.x(), dy = p.y() - pit.centre_S.y();
-            const double s2 = pit.sigma * pit.sigma;
-            const double e = pit.depth * std::exp(-(dx * dx + dy * dy) / (2.0 * s2));
-            fx += e * dx / s2;
-            fy += e * dy / s2;
-          }
-          *n_S = Eigen::Vector3d(-fx, -fy, 1.0).normalized();
-        }
-        return t;
+
+  auto in_extent = [hx, hy](const Eigen::Vector3d& p) {
+    return std::abs(p.x()) <= hx && std::abs(p.y()) <= hy;
+  };
+  auto normal = [&](const Eigen::Vector3d& p) {
+    // ∇f by the analytic derivative of each term kept.
+    double fx = kxx * p.x() + kxy * p.y();
+    double fy = kyy * p.y() + kxy * p.x();
+    for (int n = 0; n < active_count; ++n) {
+      const CavitationPit& pit = parameters_.pits[active[n]];
+      const double ex = p.x() - pit.centre_S.x(), ey = p.y() - pit.centre_S.y();
+      const double s2 = pit.sigma * pit.sigma;
+      const double e = pit.depth * std::exp(-(ex * ex + ey * ey) / (2.0 * s2));
+      fx += e * ex / s2;
+      fy += e * ey / s2;
+    }
+    return Eigen::Vector3d(-fx, -fy, 1.0).normalized();
+  };
+  // Roots of a t² + b t + (c + shift) in (lo, hi], ascending; returns how many (0..2). Double
+  // roots (no sign change) are not roots here, as for the march.
+  auto quadratic_roots = [qa, qb, qc](double shift, double lo, double hi, double roots[2]) {
+    const double c = qc + shift;
+    double r[2];
+    int count = 0;
+    if (qa == 0.0) {
+      if (qb != 0.0) r[count++] = -c / qb;
+    } else {
+      const double disc = qb * qb - 4.0 * qa * c;
+      if (disc > 0.0) {
+        const double q = -0.5 * (qb + std::copysign(std::sqrt(disc), qb));
+        r[0] = q / qa;
+        r[1] = q != 0.0 ? c / q : r[0];
+        if (r[0] > r[1]) std::swap(r[0], r[1]);
+        count = 2;
       }
     }
-    ta = tb;
-    ga = gb;
+    int kept = 0;
+    for (int n = 0; n < count; ++n) {
+      if (r[n] > lo && r[n] <= hi) roots[kept++] = r[n];
+    }
+    return kept;
+  };
+
+  double roots[2];
+  if (active_count == 0) {
+    // The quadric alone, written out (the common case: most rays pass no pit).
+    double r0 = kNoHit, r1 = kNoHit;
+    if (qa == 0.0) {
+      if (qb != 0.0) r0 = -qc / qb;
+    } else {
+      const double disc = qb * qb - 4.0 * qa * qc;
+      if (!(disc > 0.0)) return kNoHit;
+      const double q = -0.5 * (qb + std::copysign(std::sqrt(disc), qb));
+      r0 = q / qa;
+      r1 = q != 0.0 ? qc / q : r0;
+      if (r0 > r1) std::swap(r0, r1);
+    }
+    for (const double t : {r0, r1}) {
+      if (!(t > t0 && t <= t1)) continue;
+      const double x = ox + t * dx, y = oy + t * dy;
+      if (!(std::abs(x) <= hx && std::abs(y) <= hy)) continue;
+      if (n_S != nullptr) {
+        const double fx = kxx * x + kxy * y, fy = kyy * y + kxy * x;
+        const double inverse_norm = 1.0 / std::sqrt(fx * fx + fy * fy + 1.0);
+        *n_S = Eigen::Vector3d(-fx * inverse_norm, -fy * inverse_norm, inverse_norm);
+      }
+      return t;
+    }
+    return kNoHit;
   }
-  return kNoHit;
+
+  auto g = [&](double t) {
+    const double x = ox + t * dx, y = oy + t * dy;
+    double value = (qa * t + qb) * t + qc;
+    for (int n = 0; n < active_count; ++n) {
+      const CavitationPit& pit = parameters_.pits[active[n]];
+      const double ex = x - pit.centre_S.x(), ey = y - pit.centre_S.y();
+      value += pit.depth * std::exp(-(ex * ex + ey * ey) / (2.0 * pit.sigma * pit.sigma));
+    }
+    return value;
+  };
+  // March [ts, te] so that no pit can be stepped over (horizontal travel per step ≤ σ_min / 4);
+  // at the first sign change, Illinois regula falsi; a root outside the extent is passed over.
+  auto march = [&](double ts, double te) {
+    const double horizontal = std::sqrt(h2);
+    int steps = 1;
+    if (horizontal > 0.0) {
+      const double wanted = (te - ts) * horizontal / (0.25 * active_min_sigma);
+      steps = std::max(steps, static_cast<int>(std::min(std::ceil(wanted), 4096.0)));
+    }
+    const double dt = (te - ts) / steps;
+    double ta = ts, ga = g(ta);
+    for (int i = 1; i <= steps; ++i) {
+      const double tb = i == steps ? te : ts + i * dt;
+      const double gb = g(tb);
+      if ((ga > 0.0) != (gb > 0.0)) {
+        double a = ta, fa = ga, b = tb, fb = gb;
+        int side = 0;
+        for (int k = 0; k < 100 && b - a > 1e-13; ++k) {
+          const double c = (a * fb - b * fa) / (fb - fa);
+          const double fc = g(c);
+          if ((fc > 0.0) == (fa > 0.0)) {
+            a = c;
+            fa = fc;
+            if (side == -1) fb *= 0.5;
+            side = -1;
+          } else {
+            b = c;
+            fb = fc;
+            if (side == 1) fa *= 0.5;
+            side = 1;
+          }
+          if (fc == 0.0) {
+            a = b = c;
+            break;
+          }
+        }
+        const double t = 0.5 * (a + b);
+        const Eigen::Vector3d p = o + t * d;
+        if (in_extent(p)) {
+          if (n_S != nullptr) *n_S = normal(p);
+          return t;
+        }
+      }
+      ta = tb;
+      ga = gb;
+    }
+    return kNoHit;
+  };
+  // Start: the first point where g_q ≤ 0 (g > 0 before it). End of the first stretch: the first
+  // root of g_q + H after it (g ≤ 0 there); the rest only if that stretch's root is off the extent.
+  double t_start = t0;
+  if (qc + (qa * t0 + qb) * t0 > 0.0) {  // g_q(t0) > 0
+    if (quadratic_roots(0.0, t0, t1, roots) == 0) return kNoHit;
+    t_start = std::max(t0, roots[0] * (1.0 - 1e-12) - 1e-12);
+  }
+  double t_end = t1;
+  if (quadratic_roots(active_depth, t_start, t1, roots) > 0) {
+    t_end = std::min(t1, roots[0] * (1.0 + 1e-12) + 1e-12);
+  }
+  const double t = march(t_start, t_end);
+  if (t != kNoHit || t_end >= t1) return t;
+  return march(t_end, t1);
 }
 
 double LaserScene::IntersectSurface(const Ray& ray_C, int* object, Eigen::Vector3d* n_C) const {
   Ray ray_S;
-  ray_S.p_C_O = X_SC_ * ray_C.p_C_O;
-  ray_S.d_C = X_SC_.linear() * ray_C.d_C;
+  // X_SC_ * p written out with a plain 3×3 matrix (Eigen's Isometry product goes through 4×4).
+  const Eigen::Vector3d& o = ray_C.p_C_O;
+  const Eigen::Vector3d& d = ray_C.d_C;
+  for (int row = 0; row < 3; ++row) {
+    ray_S.p_C_O[row] =
+        R_SC_(row, 0) * o.x() + R_SC_(row, 1) * o.y() + R_SC_(row, 2) * o.z() + p_S_C_[row];
+    ray_S.d_C[row] = R_SC_(row, 0) * d.x() + R_SC_(row, 1) * d.y() + R_SC_(row, 2) * d.z();
+  }
   Eigen::Vector3d n_S = Eigen::Vector3d::UnitZ();
   double t = kNoHit;
   if (parameters_.surface == LaserSurfaceKind::kBlade) {
@@ -247,7 +384,7 @@ double LaserScene::IntersectSurface(const Ray& ray_C, int* object, Eigen::Vector
     }
   }
   int hit_object = t == kNoHit ? kLaserBackground : kLaserSurface;
-  Eigen::Vector3d normal = parameters_.X_CS.linear() * n_S;
+  Eigen::Vector3d normal = R_CS_ * n_S;
   if (parameters_.surface == LaserSurfaceKind::kBoard && parameters_.gauge_block) {
     Eigen::Vector3d n_box;
     const double t_box = IntersectBox(ray_C, X_CB_, 0.5 * parameters_.gauge_size, 1e-9, &n_box);

@@ -161,7 +161,15 @@ class LaserScene final : public Scene {
   LaserSceneParameters parameters_;
   LaserPlane planes_[2];
   Eigen::Isometry3d X_SC_;
-  Eigen::Isometry3d X_CB_;     // gauge block centre frame
+  Eigen::Matrix3d R_SC_ = Eigen::Matrix3d::Identity();  // X_SC_'s rotation, as a plain matrix
+  Eigen::Vector3d p_S_C_ = Eigen::Vector3d::Zero();     // X_SC_'s translation
+  Eigen::Matrix3d R_CS_ = Eigen::Matrix3d::Identity();  // X_CS's rotation
+  Eigen::Isometry3d X_CB_;                              // gauge block centre frame
+  // A pit's term is left out of a ray's heightfield where it stays below this height (m): far
+  // below the 1e-13 m the roots are refined to. pit_cutoff2_[k]: the squared horizontal distance
+  // from pit k's centre beyond which its term is below it.
+  static constexpr double kNegligiblePitHeight = 1e-15;
+  std::vector<double> pit_cutoff2_;
   double height_bound_ = 0.0;  // |f| ≤ height_bound_ + Σ h_k over the extent
   double pit_depth_sum_ = 0.0;
   double min_pit_sigma_ = 0.0;

@@ -43,7 +43,9 @@
 #include <Eigen/Geometry>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <string>
+#include <vector>
 
 #include "vision/camera/hyperbolic_mirror_camera.h"
 #include "vision/render/renderer.h"
@@ -140,6 +142,47 @@ class SoccerFieldScene final : public Scene {
   Eigen::Vector3d lens_bottom_C_;
   // Field line centre-line segments in F (outer lines, halfway line, goal and penalty areas).
   std::array<Eigen::Vector4d, 17> segments_F_;  // (x0, y0, x1, y1)
+
+  // Conservative culls for Trace() (issue 5's frame-time target; each only skips a test whose
+  // exact primitive would report no hit, so the result is unchanged):
+  // the pinhole → mirror segment can meet a post only if the mirror point is at least this far
+  // (squared, m²) from y_C; a ray meets a post only if it comes within post_cull_radius2_ of its
+  // axis, the lens body (or its disc) only if its part below the pinhole comes within
+  // lens_cull_radius2_ of y_C, the robot body (cylinder and top disc) only if its part below the
+  // body's top comes within body_cull_radius2_ of the body's axis.
+  std::array<double, 8> post_length_{};  // post axes' lengths along y_C (m), lens body's
+  double lens_length_ = 0.0;
+  // The body's axis is exactly y_C (untilted ground): IntersectCylinderAlongY gives the same bits.
+  bool body_along_y_ = false;
+  double body_length_ = 0.0;
+  std::array<double, 8> post_x_{};  // post axes' x_C and z_C (m)
+  std::array<double, 8> post_z_{};
+  double incoming_post_cull_radius2_ = 0.0;
+  double post_cull_radius2_ = 0.0;
+  double lens_cull_radius2_ = 0.0;
+  double body_cull_radius2_ = 0.0;
+  Eigen::Matrix<double, 2, 3> R_GC_xy_ = Eigen::Matrix<double, 2, 3>::Zero();  // x, y rows of X_GC
+  Eigen::Vector2d t_GC_xy_ = Eigen::Vector2d::Zero();
+  Eigen::Matrix2d R_FG_xy_ = Eigen::Matrix2d::Identity();   // X_FG's rotation (about z_F)
+  Eigen::Vector3d body_axis_C_ = Eigen::Vector3d::UnitY();  // z_G in C, unit
+  Eigen::Vector3d body_bottom_C_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d body_top_C_ = Eigen::Vector3d::Zero();
+  // A uniform grid over the carpet in F: per cell, bit k set when segment k may lie within half a
+  // line width of the cell, bit 17 likewise for the centre circle. Only those are measured. All
+  // segments are parallel to x_F or y_F (the field's lines).
+  static constexpr int kCircleBit = 17;
+  static constexpr double kLineCellSize = 0.125;     // m
+  std::array<Eigen::Vector4d, 17> segment_boxes_F_;  // (x_min, y_min, x_max, y_max) of each
+  double circle_inner2_ = 0.0;  // (centre_circle_radius ∓ line_width / 2)², inner clamped at 0
+  double circle_outer2_ = 0.0;
+  std::vector<uint32_t> line_cells_;
+  int line_cells_x_ = 0;
+  int line_cells_y_ = 0;
+  double line_cells_x0_ = 0.0;  // F coordinates of the grid's lower corner (m)
+  double line_cells_y0_ = 0.0;
+
+  // on_line of ClassifyGround() for a point on the carpet, through the grid.
+  bool OnLine(const Eigen::Vector2d& p_F) const;
 };
 
 }  // namespace kinevis::vision::render
