@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <new>
 #include <sstream>
 #include <stdexcept>
 #include <type_traits>
@@ -27,13 +28,6 @@ constexpr int kMaxSupersampling = 16;
 constexpr double kMaxBlurSigmaPx = 20.0;
 
 bool IsValidRay(const Ray& ray) { return ray.d_C.squaredNorm() > 0.0; }
-
-// A pixel (or sub-pixel sample) the camera cannot back-project sees nothing: background (object 0)
-// and black, as outside a catadioptric camera's mirror rim.
-Hit TraceOrBlack(const Scene& scene, const Ray& ray) {
-  if (!IsValidRay(ray)) return Hit{0.0, 0, std::numeric_limits<double>::infinity()};
-  return scene.Trace(ray);
-}
 
 // splitmix64 finaliser: a counter-based generator, so that the noise of pixel i of frame f is a
 // pure function of (seed, f, i) — deterministic, independent of evaluation order, and cheap.
@@ -130,6 +124,20 @@ void Or2Into(uint8_t* __restrict mask, const uint8_t* __restrict a, const uint8_
 }
 
 }  // namespace
+
+void Scene::TraceBatch(const RayBatch& rays, Hit* hits) const {
+  Ray ray;
+  ray.p_C_O = rays.origins[0];
+  for (int k = 0; k < rays.count; ++k) {
+    if (!rays.shared_origin) ray.p_C_O = rays.origins[k];
+    ray.d_C = rays.directions[k];
+    // Constructed in place (guaranteed copy elision): Trace() writes the hit straight into
+    // hits[k]. An assignment copied it with one 16-byte load from the callee's three separate
+    // stores, which store-to-load forwarding cannot serve (issue 5: a third of a cheap scene's
+    // frame).
+    new (&hits[k]) Hit(Trace(ray));
+  }
+}
 
 std::string RenderOptions::Validate() const {
   std::ostringstream bad;
@@ -281,6 +289,28 @@ Renderer::Renderer(const CameraModel& camera, const RenderOptions& options)
     }
   }
 
+  // Runs of pixels with a ray, row by row, for the batched coarse pass.
+  for (int v = 0; v < h; ++v) {
+    int u = 0;
+    while (u < w) {
+      const size_t i = static_cast<size_t>(v) * w + u;
+      if (directions_[i].squaredNorm() == 0.0) {
+        ++u;
+        continue;
+      }
+      int count = 1;
+      while (u + count < w && directions_[i + count].squaredNorm() > 0.0) ++count;
+      ray_runs_.emplace_back(static_cast<int>(i), count);
+      u += count;
+    }
+  }
+  const size_t batch_rays = static_cast<size_t>(kBatchPixels) * s * s;
+  batch_hits_.resize(std::max(static_cast<size_t>(w), batch_rays));
+  batch_origins_.resize(batch_rays);
+  batch_directions_.resize(batch_rays);
+  batch_slots_.resize(batch_rays);
+  sample_hits_.resize(batch_rays);
+
   if (options_.blur_sigma_px > 0.0) {
     const int radius = static_cast<int>(std::ceil(3.0 * options_.blur_sigma_px));
     blur_kernel_.resize(2 * radius + 1);
@@ -339,23 +369,42 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
     truth->depth.resize(n);
     depth = truth->depth.data();
   }
+  // Pixels without a ray are black background; each run of pixels with one is one batch.
   const bool own_origins = !origins_.empty();
-  Ray ray;
-  ray.p_C_O = origin_;
-  for (size_t i = 0; i < n; ++i) {
-    ray.d_C = directions_[i];
-    if (own_origins) ray.p_C_O = origins_[i];
-    const Hit hit = TraceOrBlack(scene, ray);
-    radiance_[i] = static_cast<float>(hit.radiance);
-    object_[i] = hit.object;
-    if (depth != nullptr) depth[i] = static_cast<float>(hit.depth);
+  const float no_depth = std::numeric_limits<float>::infinity();
+  auto background = [&](size_t from, size_t to) {
+    std::fill(radiance_.begin() + from, radiance_.begin() + to, 0.0f);
+    std::fill(object_.begin() + from, object_.begin() + to, 0);
+    if (depth != nullptr) std::fill(depth + from, depth + to, no_depth);
+  };
+  size_t done = 0;
+  for (const auto& [first, count] : ray_runs_) {
+    background(done, static_cast<size_t>(first));
+    RayBatch batch;
+    batch.origins = own_origins ? &origins_[first] : &origin_;
+    batch.shared_origin = !own_origins;
+    batch.directions = &directions_[first];
+    batch.count = count;
+    Hit* hits = batch_hits_.data();
+    scene.TraceBatch(batch, hits);
+    for (int k = 0; k < count; ++k) {
+      radiance_[first + k] = static_cast<float>(hits[k].radiance);
+      object_[first + k] = hits[k].object;
+    }
+    if (depth != nullptr) {
+      for (int k = 0; k < count; ++k) depth[first + k] = static_cast<float>(hits[k].depth);
+    }
+    done = static_cast<size_t>(first) + count;
   }
+  background(done, n);
   if (truth != nullptr) truth->object.assign(object_.begin(), object_.end());
 
   // 2. Edge pixels: a pixel whose 3×3 neighbourhood sees another object or a radiance jump.
   // Each unordered neighbour pair (right, down, down-right, down-left) is tested once and marks
   // both of its pixels; the tests run row pair by row pair into flag rows (branch-free loops the
-  // compiler vectorises), then are OR-ed into the mask.
+  // compiler vectorises), then are OR-ed into the mask. (A 4-neighbourhood suffices for a straight
+  // edge between two regions but loses the corners of sub-pixel lines: tried in issue 5's second
+  // pass, 135 pixels of the soccer frame moved by up to 61 grey levels.)
   const float step = static_cast<float>(options_.edge_radiance_step);
   uint8_t* horizontal = edge_flags_.data();  // pixel (u, v) differs from (u + 1, v)
   uint8_t* vertical = horizontal + w;        // (u, v) from (u, v + 1)
@@ -411,64 +460,115 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
   // pixel gets the corners' mean. Half of the edge pixels are neighbours of an edge rather than
   // crossed by it, so this saves about a third of the samples; exact for straight edges, and for
   // the limb conics here the sagitta over the 0.75 px hull is < 0.01 px.
+  // Batches: 32 edge pixels at a time, first their corners, then the other samples of those the
+  // corners did not settle, each as one Scene::TraceBatch; sums in the unbatched order.
   const int s = options_.supersampling;
   if (s > 1) {
     const bool central = camera_.IsCentral();
+    const Hit black{0.0, 0, std::numeric_limits<double>::infinity()};
     // The ray of sub-sample k of pixel i = (u, v): bilinear in the verified cell around it (the
     // weights depend on k only, tabulated in subsamples_), else the exact ray cached by the
-    // constructor, else back-projected now (image border).
-    auto sample = [&](int i, int u, int v, int k, const Ray* exact) -> Hit {
+    // constructor, else back-projected now (image border). False when there is none.
+    auto sample_ray = [&](int i, int u, int v, int k, const Ray* exact, Eigen::Vector3d* origin,
+                          Eigen::Vector3d* direction) -> bool {
       const SubSample& sub = subsamples_[k];
       const int cell_u = u + sub.cell_du, cell_v = v + sub.cell_dv;
-      Ray ray;
       if (cell_u >= 0 && cell_v >= 0 && cell_u + 1 < w && cell_v + 1 < h) {
         const size_t c = static_cast<size_t>(i + sub.cell_delta);
         if (cell_interpolable_[c]) {  // all four rays valid, interpolation verified
           const Eigen::Vector3d d = sub.w00 * directions_[c] + sub.w10 * directions_[c + 1] +
                                     sub.w01 * directions_[c + w] + sub.w11 * directions_[c + w + 1];
-          ray.d_C = d / d.norm();
-          ray.p_C_O = central
-                          ? Origin(c)
-                          : Eigen::Vector3d(sub.w00 * Origin(c) + sub.w10 * Origin(c + 1) +
-                                            sub.w01 * Origin(c + w) + sub.w11 * Origin(c + w + 1));
-          return scene.Trace(ray);
+          *direction = d / d.norm();
+          *origin = central
+                        ? Origin(c)
+                        : Eigen::Vector3d(sub.w00 * Origin(c) + sub.w10 * Origin(c + 1) +
+                                          sub.w01 * Origin(c + w) + sub.w11 * Origin(c + w + 1));
+          return true;
         }
-        if (exact != nullptr) return TraceOrBlack(scene, exact[k]);
+        if (exact != nullptr) {
+          *origin = exact[k].p_C_O;
+          *direction = exact[k].d_C;
+          return IsValidRay(exact[k]);
+        }
       }
+      Ray ray;
       if (camera_.BackProject(Eigen::Vector2d(u + sub.du, v + sub.dv), &ray) !=
           ProjectionStatus::kOk) {
-        ray.d_C.setZero();  // no ray: black background (see TraceOrBlack)
+        return false;  // no ray: black background (header)
       }
-      return TraceOrBlack(scene, ray);
+      *origin = ray.p_C_O;
+      *direction = ray.d_C;
+      return IsValidRay(ray);
+    };
+    // Queues sample k of the pixel in batch slot p (hit slot p·s² + k); traces the queue.
+    const int ss = s * s;
+    int queued = 0;
+    auto queue = [&](int p, int i, int u, int v, int k, const Ray* exact) {
+      const int slot = p * ss + k;
+      if (sample_ray(i, u, v, k, exact, &batch_origins_[queued], &batch_directions_[queued])) {
+        batch_slots_[queued++] = slot;
+      } else {
+        sample_hits_[slot] = black;
+      }
+    };
+    auto trace_queue = [&]() {
+      if (queued > 0) {
+        RayBatch batch;
+        batch.origins = batch_origins_.data();
+        batch.directions = batch_directions_.data();
+        batch.count = queued;
+        scene.TraceBatch(batch, batch_hits_.data());
+        for (int r = 0; r < queued; ++r) sample_hits_[batch_slots_[r]] = batch_hits_[r];
+      }
+      queued = 0;
     };
     const int last = s - 1;
     const int k10 = last, k01 = last * s, k11 = last * s + last;
+    std::array<const Ray*, kBatchPixels> exacts;
+    std::array<bool, kBatchPixels> settled;
     size_t next_exact = 0;  // both lists ascend: walk them together
-    for (const int i : edge_pixels_) {
-      const int u = i % w, v = i / w;
-      while (next_exact < exact_pixels_.size() && exact_pixels_[next_exact] < i) ++next_exact;
-      const Ray* exact = next_exact < exact_pixels_.size() && exact_pixels_[next_exact] == i
-                             ? &exact_rays_[next_exact * s * s]
-                             : nullptr;
-      const Hit c00 = sample(i, u, v, 0, exact), c10 = sample(i, u, v, k10, exact);
-      const Hit c01 = sample(i, u, v, k01, exact), c11 = sample(i, u, v, k11, exact);
-      const double lo = std::min({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
-      const double hi = std::max({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
-      const double corners = c00.radiance + c10.radiance + c01.radiance + c11.radiance;
-      if (c00.object == c10.object && c00.object == c01.object && c00.object == c11.object &&
-          hi - lo <= options_.edge_radiance_step) {
-        radiance_[i] = static_cast<float>(0.25 * corners);
-        continue;
+    for (size_t e0 = 0; e0 < edge_pixels_.size(); e0 += kBatchPixels) {
+      const int batch_pixels =
+          static_cast<int>(std::min<size_t>(kBatchPixels, edge_pixels_.size() - e0));
+      for (int p = 0; p < batch_pixels; ++p) {
+        const int i = edge_pixels_[e0 + p];
+        const int u = i % w, v = i / w;
+        while (next_exact < exact_pixels_.size() && exact_pixels_[next_exact] < i) ++next_exact;
+        exacts[p] = next_exact < exact_pixels_.size() && exact_pixels_[next_exact] == i
+                        ? &exact_rays_[next_exact * ss]
+                        : nullptr;
+        for (const int k : {0, k10, k01, k11}) queue(p, i, u, v, k, exacts[p]);
       }
-      double sum = corners;
-      for (int b = 0; b < s; ++b) {
-        const bool edge_row = b == 0 || b == last;
-        for (int a = 0; a < s; ++a) {
-          if (edge_row && (a == 0 || a == last)) continue;  // a corner, traced above
-          sum += sample(i, u, v, b * s + a, exact).radiance;
+      trace_queue();
+      for (int p = 0; p < batch_pixels; ++p) {
+        const int i = edge_pixels_[e0 + p];
+        const Hit* hits = &sample_hits_[static_cast<size_t>(p) * ss];
+        const Hit &c00 = hits[0], &c10 = hits[k10], &c01 = hits[k01], &c11 = hits[k11];
+        const double lo = std::min({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
+        const double hi = std::max({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
+        settled[p] = c00.object == c10.object && c00.object == c01.object &&
+                     c00.object == c11.object && hi - lo <= options_.edge_radiance_step;
+        if (settled[p]) {
+          radiance_[i] = static_cast<float>(
+              0.25 * (c00.radiance + c10.radiance + c01.radiance + c11.radiance));
+          continue;
+        }
+        const int u = i % w, v = i / w;
+        for (int k = 0; k < ss; ++k) {
+          if (k != 0 && k != k10 && k != k01 && k != k11) queue(p, i, u, v, k, exacts[p]);
         }
       }
-      radiance_[i] = static_cast<float>(sum / (s * s));
+      trace_queue();
+      for (int p = 0; p < batch_pixels; ++p) {
+        if (settled[p]) continue;
+        const Hit* hits = &sample_hits_[static_cast<size_t>(p) * ss];
+        double sum =
+            hits[0].radiance + hits[k10].radiance + hits[k01].radiance + hits[k11].radiance;
+        for (int k = 0; k < ss; ++k) {
+          if (k != 0 && k != k10 && k != k01 && k != k11) sum += hits[k].radiance;
+        }
+        radiance_[edge_pixels_[e0 + p]] = static_cast<float>(sum / ss);
+      }
     }
   }
 

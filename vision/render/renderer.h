@@ -10,14 +10,16 @@
 // geometry in a world frame W and the pose X_WC of the camera (or is built directly in C).
 //
 // Cost model: the back-projected rays of a camera are cached per pixel (Renderer::Prepare), so a
-// frame costs one Scene::Trace per pixel plus s² per edge pixel. The target is a 640×480 frame in
-// ≤ 10 ms on one core (bench/render_bench.cc).
+// frame costs one trace per pixel plus s² per edge pixel, handed to the scene in batches
+// (Scene::TraceBatch: a run of pixels of one row, the sub-samples of 32 edge pixels). The target
+// is a 640×480 frame in ≤ 10 ms on one core (bench/render_bench.cc).
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "vision/camera/camera_model.h"
@@ -33,11 +35,25 @@ struct Hit {
   double depth = 0.0;
 };
 
+// A batch of rays for Scene::TraceBatch: ray k starts at origins[shared_origin ? 0 : k] and runs
+// along directions[k] (unit, never zero: the renderer never passes a pixel it cannot back-project).
+struct RayBatch {
+  const Eigen::Vector3d* origins = nullptr;
+  const Eigen::Vector3d* directions = nullptr;
+  int count = 0;
+  bool shared_origin = false;
+};
+
 // A scene: pure function of the ray, const, thread-safe.
 class Scene {
  public:
   virtual ~Scene() = default;
   virtual Hit Trace(const Ray& ray_C) const = 0;
+  // hits[k] = Trace(ray k) for every ray of the batch (the renderer traces a row of pixels, or the
+  // sub-samples of a few dozen edge pixels, per call). The default calls Trace(); a scene may
+  // override it to amortise per-ray set-up or trace several rays at once, but must return exactly
+  // what Trace() returns (the renderer mixes both).
+  virtual void TraceBatch(const RayBatch& rays, Hit* hits) const;
 };
 
 // A non-owning 8-bit grey image view (row-major, `stride` bytes per row); hal::Image and cv::Mat
@@ -136,6 +152,17 @@ class Renderer {
   // exact rays (direction zero where BackProject failed), computed once by the constructor.
   std::vector<int> exact_pixels_;
   std::vector<Ray> exact_rays_;
+  // Runs of consecutive pixels of one row with a ray, (first index, count) pairs in ascending
+  // order: the coarse pass traces each run as one batch.
+  std::vector<std::pair<int, int>> ray_runs_;
+  // Batch scratch (sized by the constructor): the hits of one run or sample batch, and the
+  // sub-sample rays of up to kBatchPixels edge pixels with the hit slot each fills.
+  static constexpr int kBatchPixels = 32;
+  std::vector<Hit> batch_hits_;
+  std::vector<Eigen::Vector3d> batch_origins_;
+  std::vector<Eigen::Vector3d> batch_directions_;
+  std::vector<int> batch_slots_;
+  std::vector<Hit> sample_hits_;  // kBatchPixels × s² per-sample hits
   double max_interpolation_error_px_ = 0.0;
   double interpolated_cell_fraction_ = 0.0;
   int last_edge_pixels_ = 0;

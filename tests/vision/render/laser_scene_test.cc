@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <memory>
 #include <random>
 #include <vector>
@@ -496,6 +497,82 @@ TEST(LaserScene, BadParametersAreNamedInOneMessage) {
                   ".*rotating_b_y = nan.*pits\\[0\\]\\.depth = -1.*stripe_sigma = 0.01.*"));
   EXPECT_THROW(LaserScene{p}, std::invalid_argument);
   EXPECT_EQ(LaserSceneParameters().Validate(), "");
+}
+
+// TraceBatch (issue 5's two-rays-at-a-time path) gives exactly Trace()'s hits, bit for bit: every
+// third pixel-centre ray of the scanner camera row by row (shared origin), and random rays from
+// random origins (one origin per ray), on the blade with pits (the fast path, with its fall-backs),
+// a flat blade and the board with the gauge block (Trace() throughout).
+TEST(LaserScene, TraceBatchEqualsTraceBitForBit) {
+  const std::unique_ptr<CameraModel> camera = ScannerCamera();
+  LaserSceneParameters pitted;
+  pitted.curvature_xx = 2.0;
+  pitted.curvature_xy = -0.7;
+  pitted.pits = {CavitationPit{Eigen::Vector2d(0.01, 0.0), 1.0e-3, 3e-3},
+                 CavitationPit{Eigen::Vector2d(-0.02, 0.015), 0.5e-3, 2e-3}};
+  LaserSceneParameters flat;
+  LaserSceneParameters board;
+  board.surface = LaserSurfaceKind::kBoard;
+  board.gauge_block = true;
+  board.gauge_centre_S = Eigen::Vector2d(0.01, -0.005);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  for (const LaserSceneParameters& p : {pitted, flat, board}) {
+    const LaserScene scene(p);
+    int compared = 0, lit = 0, surface = 0, different = 0;
+    auto compare = [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Hit& batch) {
+      Ray ray;
+      ray.p_C_O = o;
+      ray.d_C = d;
+      const Hit one = scene.Trace(ray);
+      // Bits, not values: == would let −0.0 pass for 0.0 (and the depths may be +inf).
+      if (std::memcmp(&one.radiance, &batch.radiance, sizeof(double)) != 0 ||
+          std::memcmp(&one.depth, &batch.depth, sizeof(double)) != 0 ||
+          one.object != batch.object) {
+        ++different;
+      }
+      ++compared;
+      surface += one.object == kLaserSurface ? 1 : 0;
+      lit += one.radiance > 0.3 ? 1 : 0;
+    };
+    std::vector<Eigen::Vector3d> directions, origins;
+    std::vector<Hit> hits;
+    for (int v = 0; v < camera->height(); v += 3) {
+      directions.clear();
+      Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+      for (int u = v % 2; u < camera->width(); u += 3) {  // odd and even batch lengths
+        Ray ray;
+        ASSERT_EQ(camera->BackProject(Eigen::Vector2d(u, v), &ray), ProjectionStatus::kOk);
+        origin = ray.p_C_O;
+        directions.push_back(ray.d_C);
+      }
+      hits.assign(directions.size(), Hit{});
+      RayBatch batch;
+      batch.origins = &origin;
+      batch.shared_origin = true;
+      batch.directions = directions.data();
+      batch.count = static_cast<int>(directions.size());
+      scene.TraceBatch(batch, hits.data());
+      for (size_t k = 0; k < directions.size(); ++k) compare(origin, directions[k], hits[k]);
+    }
+    directions.clear();
+    for (int k = 0; k < 20001; ++k) {
+      origins.push_back(Eigen::Vector3d(0.05 * unit(rng), 0.05 * unit(rng), 0.1 * unit(rng)));
+      directions.push_back(Eigen::Vector3d(0.3 * unit(rng), 0.3 * unit(rng), 1.0).normalized());
+    }
+    hits.assign(directions.size(), Hit{});
+    RayBatch batch;
+    batch.origins = origins.data();
+    batch.directions = directions.data();
+    batch.count = static_cast<int>(directions.size());
+    scene.TraceBatch(batch, hits.data());
+    for (size_t k = 0; k < directions.size(); ++k) compare(origins[k], directions[k], hits[k]);
+    std::printf("TraceBatch: %d rays, %d on the surface, %d lit, %d different\n", compared, surface,
+                lit, different);
+    EXPECT_EQ(different, 0);
+    EXPECT_GT(surface, compared / 4);
+    EXPECT_GT(lit, 500);
+  }
 }
 
 }  // namespace

@@ -471,5 +471,73 @@ TEST(RendererTest, EdgePixelsAreOnlyFoundWhereThereIsAnEdge) {
   EXPECT_EQ(renderer.last_edge_pixels(), 2 * 120);
 }
 
+// A scene that traces its batches itself (and differently from Trace(): mirrored pairs of rays in
+// reverse order, so that a renderer that mixed up the hits of a batch would show), counting rays
+// and checking that no batch holds a ray the camera could not back-project.
+class BatchCheckingScene final : public Scene {
+ public:
+  explicit BatchCheckingScene(const Scene& inner) : inner_(inner) {}
+  Hit Trace(const Ray& ray) const override {
+    ++single_;
+    return inner_.Trace(ray);
+  }
+  void TraceBatch(const RayBatch& rays, Hit* hits) const override {
+    for (int k = rays.count - 1; k >= 0; --k) {
+      Ray ray;
+      ray.p_C_O = rays.origins[rays.shared_origin ? 0 : k];
+      ray.d_C = rays.directions[k];
+      if (!(ray.d_C.squaredNorm() > 0.5)) ++invalid_;
+      hits[k] = inner_.Trace(ray);
+    }
+    batched_ += rays.count;
+    ++batches_;
+  }
+  mutable int single_ = 0, invalid_ = 0, batched_ = 0, batches_ = 0;
+
+ private:
+  const Scene& inner_;
+};
+
+TEST(RendererTest, RendersThroughTraceBatchWithValidRaysOnlyAndTheSameBytes) {
+  // A domain that ends mid-row (no ray beyond u = 100.2) and a non-central camera with holes, both
+  // with edges to supersample; the batched frame must equal the one through Trace() alone.
+  const ClippedPinhole clipped(100.2);
+  const EllipseCamera ellipse;
+  const HalfSpaceScene half(Eigen::Vector3d(0.3, -1.0, 0.1).normalized(), 0.2, 0.9);
+  const SubpixelRampScene ramp;
+  struct Case {
+    const CameraModel* camera;
+    const Scene* scene;
+  };
+  for (const Case& c : {Case{&clipped, &half}, Case{&ellipse, &ramp}}) {
+    RenderOptions o;
+    o.supersampling = 4;
+    Renderer renderer(*c.camera, o);
+    const BatchCheckingScene batching(*c.scene);
+    // The reference: a scene with only Trace(), i.e. the default TraceBatch.
+    class TraceOnly final : public Scene {
+     public:
+      explicit TraceOnly(const Scene& inner) : inner_(inner) {}
+      Hit Trace(const Ray& ray) const override { return inner_.Trace(ray); }
+
+     private:
+      const Scene& inner_;
+    } reference(*c.scene);
+    Frame a = MakeFrame(*c.camera), b = MakeFrame(*c.camera);
+    GroundTruth truth_a, truth_b;
+    renderer.Render(batching, 3, a.view, &truth_a);
+    renderer.Render(reference, 3, b.view, &truth_b);
+    EXPECT_EQ(a.pixels, b.pixels);
+    EXPECT_EQ(truth_a.object, truth_b.object);
+    EXPECT_EQ(truth_a.depth, truth_b.depth);
+    EXPECT_EQ(batching.single_, 0);
+    EXPECT_EQ(batching.invalid_, 0);
+    EXPECT_GT(renderer.last_edge_pixels(), 100);
+    // Every pixel with a ray once, plus the sub-samples of the edge pixels, in few batches.
+    EXPECT_GT(batching.batched_, 10000);
+    EXPECT_LT(batching.batches_, batching.batched_ / 20);
+  }
+}
+
 }  // namespace
 }  // namespace kinevis::vision::render

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <random>
+#include <set>
 #include <vector>
 
 #include "vision/camera/hyperbolic_mirror_camera.h"
@@ -414,6 +415,48 @@ TEST(SoccerFieldScene, BadParametersAreNamedInOneMessage) {
   SoccerFieldSceneParameters tall;
   tall.body_height = 0.7;  // above the pinhole (0.57 m)
   EXPECT_THROW(SoccerFieldScene(camera, tall), std::invalid_argument);
+}
+
+// TraceBatch (the trace inlined into a loop) gives exactly Trace()'s hits for every pixel ray of
+// the mirror camera (a non-central model: one origin per ray).
+TEST(SoccerFieldScene, TraceBatchEqualsTrace) {
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  SoccerFieldSceneParameters p;
+  p.robot_x = 6.2;
+  p.robot_y = 4.9;
+  p.robot_heading = 0.4;
+  const SoccerFieldScene scene(camera, p);
+  std::vector<Eigen::Vector3d> origins, directions;
+  for (int v = 0; v < camera.height(); ++v) {
+    for (int u = 0; u < camera.width(); ++u) {
+      Ray ray;
+      if (camera.BackProject(Eigen::Vector2d(u, v), &ray) != ProjectionStatus::kOk) continue;
+      origins.push_back(ray.p_C_O);
+      directions.push_back(ray.d_C);
+    }
+  }
+  std::vector<Hit> hits(directions.size());
+  RayBatch batch;
+  batch.origins = origins.data();
+  batch.directions = directions.data();
+  batch.count = static_cast<int>(directions.size());
+  scene.TraceBatch(batch, hits.data());
+  int different = 0;
+  std::set<int> objects;
+  for (size_t k = 0; k < directions.size(); ++k) {
+    Ray ray;
+    ray.p_C_O = origins[k];
+    ray.d_C = directions[k];
+    const Hit one = scene.Trace(ray);
+    objects.insert(one.object);
+    if (one.object != hits[k].object || one.radiance != hits[k].radiance ||
+        !(one.depth == hits[k].depth)) {
+      ++different;
+    }
+  }
+  EXPECT_GT(directions.size(), 100000u);
+  EXPECT_EQ(different, 0);
+  EXPECT_GE(objects.size(), 6u);
 }
 
 }  // namespace

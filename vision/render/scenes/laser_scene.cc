@@ -1,8 +1,11 @@
 #include "vision/render/scenes/laser_scene.h"
 
+#include <emmintrin.h>  // SSE2: part of every x86-64 target
+
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <new>
 #include <sstream>
 #include <stdexcept>
 
@@ -23,6 +26,39 @@ class Problems {
 };
 
 bool InUnit(double x) { return std::isfinite(x) && x >= 0.0 && x <= 1.0; }
+
+// Two doubles (SSE2). Every operation is the IEEE one of the scalar code, lane by lane (no fused
+// multiply-add: x86-64's baseline has none), so the lanes round exactly as the scalar code does.
+struct D2 {
+  __m128d v;
+};
+inline D2 Set(double x) { return {_mm_set1_pd(x)}; }
+inline D2 operator+(D2 a, D2 b) { return {_mm_add_pd(a.v, b.v)}; }
+inline D2 operator-(D2 a, D2 b) { return {_mm_sub_pd(a.v, b.v)}; }
+inline D2 operator*(D2 a, D2 b) { return {_mm_mul_pd(a.v, b.v)}; }
+inline D2 operator/(D2 a, D2 b) { return {_mm_div_pd(a.v, b.v)}; }
+inline D2 operator-(D2 a) { return {_mm_xor_pd(a.v, _mm_set1_pd(-0.0))}; }
+inline D2 Sqrt(D2 a) { return {_mm_sqrt_pd(a.v)}; }
+inline D2 Abs(D2 a) { return {_mm_andnot_pd(_mm_set1_pd(-0.0), a.v)}; }
+// std::copysign(magnitude, sign) for a magnitude ≥ 0.
+inline D2 CopySignOfPositive(D2 magnitude, D2 sign) {
+  return {_mm_or_pd(magnitude.v, _mm_and_pd(sign.v, _mm_set1_pd(-0.0)))};
+}
+// Comparison masks (all ones where true; false for NaN operands, as in C++).
+inline __m128d Less(D2 a, D2 b) { return _mm_cmplt_pd(a.v, b.v); }
+inline __m128d LessEqual(D2 a, D2 b) { return _mm_cmple_pd(a.v, b.v); }
+inline __m128d Greater(D2 a, D2 b) { return _mm_cmpgt_pd(a.v, b.v); }
+inline __m128d NotEqual(D2 a, D2 b) { return _mm_cmpneq_pd(a.v, b.v); }
+inline __m128d Equal(D2 a, D2 b) { return _mm_cmpeq_pd(a.v, b.v); }
+inline D2 Select(__m128d mask, D2 a, D2 b) {
+  return {_mm_or_pd(_mm_and_pd(mask, a.v), _mm_andnot_pd(mask, b.v))};
+}
+inline D2 Lanes(double a, double b) { return {_mm_set_pd(b, a)}; }
+inline double Lane(D2 a, int k) {
+  alignas(16) double x[2];
+  _mm_store_pd(x, a.v);
+  return x[k];
+}
 
 LaserPlane MakePlane(const Eigen::Vector3d& normal, const Eigen::Vector3d& emitter) {
   LaserPlane plane;
@@ -134,8 +170,12 @@ LaserScene::LaserScene(const LaserSceneParameters& parameters) : parameters_(par
       // h exp(−r² / (2σ²)) < kNegligiblePitHeight beyond r² = 2σ² ln(h / kNegligiblePitHeight).
       pit_cutoff2_.push_back(2.0 * pit.sigma * pit.sigma *
                              std::log(std::max(pit.depth / kNegligiblePitHeight, 1.0)));
+      pit_reach_.push_back(std::sqrt(pit_cutoff2_.back()) * (1.0 + 1e-9) + 1e-12);
     }
   }
+  batch_fast_path_ = parameters.surface == LaserSurfaceKind::kBlade &&
+                     (parameters.curvature_xx != 0.0 || parameters.curvature_yy != 0.0 ||
+                      parameters.curvature_xy != 0.0);
   X_CB_ = parameters.X_CS *
           Eigen::Translation3d(parameters.gauge_centre_S.x(), parameters.gauge_centre_S.y(),
                                0.5 * parameters.gauge_size.z()) *
@@ -178,9 +218,12 @@ double LaserScene::IntersectHeightfield(const Ray& ray_S, Eigen::Vector3d* n_S) 
   // plus Σ_k h_k exp(−|p(t) − c_k|² / (2 σ_k²)) ≥ 0 from the pits. Issue 5's speed-up: a pit
   // whose closest approach to this ray's stretch through the slab keeps its term below
   // kNegligiblePitHeight everywhere there is left out (pit_cutoff2_), so most rays meet just the
-  // quadric, analytically. With pits left, g_q ≤ g ≤ g_q + H (H the depths of the pits kept): the
-  // first root lies between the first root of g_q and that of g_q + H, and only that stretch is
-  // marched and refined (regula falsi) as before.
+  // quadric, analytically. With pits left, g_q ≤ g ≤ g_q + H, H = Σ h_k exp(−D_k² / (2 σ_k²))
+  // over the pits kept, D_k the closest approach of the stretch to pit k's centre (a bound of its
+  // term on the whole stretch; the depths Σ h_k before this session's second speed-up, a bracket
+  // up to a millimetre long, refined by ~20 evaluations of g; with D_k most brackets are
+  // nanometres long): the first root lies between the first root of g_q and that of g_q + H, and
+  // only that stretch is marched and refined (regula falsi) as before.
   const double kxx = parameters_.curvature_xx, kyy = parameters_.curvature_yy;
   const double kxy = parameters_.curvature_xy;
   const double ox = o.x(), oy = o.y(), dx = d.x(), dy = d.y();
@@ -190,7 +233,7 @@ double LaserScene::IntersectHeightfield(const Ray& ray_S, Eigen::Vector3d* n_S) 
 
   std::array<int, 64> active;
   int active_count = 0;
-  double active_depth = 0.0, active_min_sigma = 1.0;
+  double active_depth = 0.0, active_min_sigma = 1.0;  // active_depth: H below
   const double h2 = dx * dx + dy * dy;
   for (int k = 0; k < static_cast<int>(parameters_.pits.size()); ++k) {
     const CavitationPit& pit = parameters_.pits[k];
@@ -209,9 +252,12 @@ double LaserScene::IntersectHeightfield(const Ray& ray_S, Eigen::Vector3d* n_S) 
       if (distance2 > pit_cutoff2_[k]) continue;
     } else if (c2 * h2 - cd * cd > pit_cutoff2_[k] * h2) {
       continue;
+    } else {
+      distance2 = std::max(0.0, c2 - cd * cd / h2);  // h2 > 0 here: t0 h2 < cd < t1 h2
     }
     active[active_count++] = k;
-    active_depth += pit.depth;
+    // The relative margin covers the rounding of distance2 and exp (~1e-16 each).
+    active_depth += pit.depth * std::exp(-distance2 / (2.0 * pit.sigma * pit.sigma)) * (1.0 + 1e-9);
     active_min_sigma = std::min(active_min_sigma, pit.sigma);
   }
 
@@ -330,6 +376,21 @@ double LaserScene::IntersectHeightfield(const Ray& ray_S, Eigen::Vector3d* n_S) 
             a = b = c;
             break;
           }
+          // Close the bracket from the moved end: one evaluation 0.9e-13 beyond c towards the
+          // other end. Near a root g is almost linear here, so c usually lands within that of it
+          // and the bracket is done after one step; regula falsi alone keeps one end in place
+          // for several steps (issue 5: pit rays cost ~10 evaluations of g, each an exp per pit).
+          const double probe = side == -1 ? c + 0.9e-13 : c - 0.9e-13;
+          if (b - a > 1e-13 && probe > a && probe < b) {
+            const double fp = g(probe);
+            if ((fp > 0.0) == (fa > 0.0)) {
+              a = probe;
+              fa = fp;
+            } else {
+              b = probe;
+              fb = fp;
+            }
+          }
         }
         const double t = 0.5 * (a + b);
         const Eigen::Vector3d p = o + t * d;
@@ -384,7 +445,11 @@ double LaserScene::IntersectSurface(const Ray& ray_C, int* object, Eigen::Vector
     }
   }
   int hit_object = t == kNoHit ? kLaserBackground : kLaserSurface;
-  Eigen::Vector3d normal = R_CS_ * n_S;
+  // R_CS_ * n_S written out (TracePair repeats these operations in this order).
+  Eigen::Vector3d normal;
+  for (int row = 0; row < 3; ++row) {
+    normal[row] = R_CS_(row, 0) * n_S.x() + R_CS_(row, 1) * n_S.y() + R_CS_(row, 2) * n_S.z();
+  }
   if (parameters_.surface == LaserSurfaceKind::kBoard && parameters_.gauge_block) {
     Eigen::Vector3d n_box;
     const double t_box = IntersectBox(ray_C, X_CB_, 0.5 * parameters_.gauge_size, 1e-9, &n_box);
@@ -395,7 +460,10 @@ double LaserScene::IntersectSurface(const Ray& ray_C, int* object, Eigen::Vector
     }
   }
   if (object != nullptr) *object = hit_object;
-  if (n_C != nullptr) *n_C = normal.dot(ray_C.d_C) > 0.0 ? -normal : normal;
+  if (n_C != nullptr) {
+    const double facing = normal.x() * d.x() + normal.y() * d.y() + normal.z() * d.z();
+    *n_C = facing > 0.0 ? Eigen::Vector3d(-normal) : normal;
+  }
   return t;
 }
 
@@ -423,16 +491,22 @@ LaserHit LaserScene::TraceDetailed(const Ray& ray_C) const {
   Eigen::Vector3d n_C;
   const double t = IntersectSurface(ray_C, &object, &n_C);
   if (t == kNoHit) return out;
-  out.p_C = ray_C.p_C_O + t * ray_C.d_C;
+  const Eigen::Vector3d& d = ray_C.d_C;
+  out.p_C = ray_C.p_C_O + t * d;
   out.n_C = n_C;
   out.hit.object = object;
   out.hit.depth = t;
-  double radiance = parameters_.ambient * (0.3 + 0.7 * std::abs(n_C.dot(ray_C.d_C)));
+  // Dot products written out (TracePair repeats these operations in this order).
+  const double cosine = n_C.x() * d.x() + n_C.y() * d.y() + n_C.z() * d.z();
+  double radiance = parameters_.ambient * (0.3 + 0.7 * std::abs(cosine));
   const bool on[2] = {parameters_.fixed_on, parameters_.rotating_on};
   const double inverse_two_sigma2 =
       1.0 / (2.0 * parameters_.stripe_sigma * parameters_.stripe_sigma);
   for (int i = 0; i < 2; ++i) {
-    out.plane_distance[i] = planes_[i].SignedDistance(out.p_C);
+    const Eigen::Vector3d& n = planes_[i].normal;
+    const Eigen::Vector3d& q = planes_[i].point;
+    out.plane_distance[i] = n.x() * (out.p_C.x() - q.x()) + n.y() * (out.p_C.y() - q.y()) +
+                            n.z() * (out.p_C.z() - q.z());
     if (!on[i]) continue;
     const double d2 = out.plane_distance[i] * out.plane_distance[i];
     // Beyond 8 σ the stripe adds < 1e-13; skip the shadow ray there.
@@ -448,6 +522,224 @@ LaserHit LaserScene::TraceDetailed(const Ray& ray_C) const {
 }
 
 Hit LaserScene::Trace(const Ray& ray_C) const { return TraceDetailed(ray_C).hit; }
+
+// Issue 5's frame time: most of a blade frame's rays meet the quadric only (no pit within reach),
+// which TraceChunk solves two rays at a time with the operations of IntersectSurface(),
+// IntersectHeightfield()'s pit-free branch and TraceDetailed() in the same order — so the hits are
+// bit for bit those of Trace() (laser_scene_test compares them). Rays it cannot settle (a pit
+// within reach, a ray parallel to the slab, a zero leading coefficient) go through Trace(); so
+// does the board. The work runs in stages over a chunk of rays (short loop bodies, so that the
+// CPU overlaps the divisions and square roots of many rays; one ray's chain of them is ~200
+// cycles long).
+void LaserScene::TraceBatch(const RayBatch& rays, Hit* hits) const {
+  Ray ray;
+  auto trace_one = [&](int k) {
+    ray.p_C_O = rays.origins[rays.shared_origin ? 0 : k];
+    ray.d_C = rays.directions[k];
+    new (&hits[k]) Hit(Trace(ray));  // in place, as Scene::TraceBatch (renderer.cc) says why
+  };
+  if (!batch_fast_path_) {
+    for (int k = 0; k < rays.count; ++k) trace_one(k);
+    return;
+  }
+  bool done[kChunkRays];
+  for (int first = 0; first < rays.count; first += kChunkRays) {
+    const int count = std::min(kChunkRays, rays.count - first);
+    TraceChunk(rays, first, count, hits + first, done);
+    for (int k = 0; k < count; ++k) {
+      if (!done[k]) trace_one(first + k);
+    }
+  }
+}
+
+void LaserScene::TraceChunk(const RayBatch& rays, int first, int count, Hit* hits,
+                            bool* done) const {
+  const LaserSceneParameters& p = parameters_;
+  constexpr int kPairs = kChunkRays / 2;
+  const int pairs = (count + 1) / 2;
+  // Per pair: the ray in C and in S, the stretch [t0, t1] through the slab, the quadric, masks.
+  D2 ox[kPairs], oy[kPairs], oz[kPairs], dx[kPairs], dy[kPairs], dz[kPairs];
+  D2 sox[kPairs], soy[kPairs], sdx[kPairs], sdy[kPairs], t0s[kPairs], t1s[kPairs];
+  D2 qas[kPairs], qbs[kPairs], qcs[kPairs];
+  __m128d hits_mask[kPairs], fallback_mask[kPairs];
+  const double kxx = p.curvature_xx, kyy = p.curvature_yy, kxy = p.curvature_xy;
+  const D2 hkxx = Set(0.5 * kxx), hkyy = Set(0.5 * kyy);
+  const D2 Kxx = Set(kxx), Kyy = Set(kyy), Kxy = Set(kxy);
+
+  // 1. The ray in S, the slab, the pits within reach and the quadric (IntersectSurface,
+  // IntersectHeightfield).
+  const D2 z_hi = Set(height_bound_ + 1e-9);
+  const D2 z_lo = Set(-height_bound_ - pit_depth_sum_ - 1e-9);
+  const D2 hx = Set(p.half_extent.x()), hy = Set(p.half_extent.y());
+  for (int j = 0; j < pairs; ++j) {
+    const int a = first + 2 * j, b = std::min(a + 1, first + count - 1);  // odd count: repeat
+    const Eigen::Vector3d& oa = rays.origins[rays.shared_origin ? 0 : a];
+    const Eigen::Vector3d& ob = rays.origins[rays.shared_origin ? 0 : b];
+    const Eigen::Vector3d& da = rays.directions[a];
+    const Eigen::Vector3d& db = rays.directions[b];
+    ox[j] = Lanes(oa.x(), ob.x());
+    oy[j] = Lanes(oa.y(), ob.y());
+    oz[j] = Lanes(oa.z(), ob.z());
+    dx[j] = Lanes(da.x(), db.x());
+    dy[j] = Lanes(da.y(), db.y());
+    dz[j] = Lanes(da.z(), db.z());
+    D2 os[3], ds[3];
+    for (int row = 0; row < 3; ++row) {
+      os[row] = Set(R_SC_(row, 0)) * ox[j] + Set(R_SC_(row, 1)) * oy[j] +
+                Set(R_SC_(row, 2)) * oz[j] + Set(p_S_C_[row]);
+      ds[row] =
+          Set(R_SC_(row, 0)) * dx[j] + Set(R_SC_(row, 1)) * dy[j] + Set(R_SC_(row, 2)) * dz[j];
+    }
+    __m128d fallback = Less(Abs(ds[2]), Set(1e-12));
+    const D2 inverse_dz = Set(1.0) / ds[2];
+    const D2 ta0 = (z_hi - os[2]) * inverse_dz, tb0 = (z_lo - os[2]) * inverse_dz;
+    const __m128d swap = Greater(ta0, tb0);
+    const D2 ta = Select(swap, tb0, ta0), tb = Select(swap, ta0, tb0);
+    const D2 t0 = {_mm_max_pd(ta.v, _mm_set1_pd(1e-9))};  // std::max(1e-9, ta)
+    const D2 t1 = tb;
+    // The stretch's xy bounding box, grown by a margin for rounding: a ray whose box misses the
+    // extent sees the background (whatever the pits: the scalar code's root would be off the
+    // extent), and a pit whose cut-off square misses the box is out of reach.
+    const D2 ex0 = os[0] + t0 * ds[0], ey0 = os[1] + t0 * ds[1];
+    const D2 ex1 = os[0] + t1 * ds[0], ey1 = os[1] + t1 * ds[1];
+    const D2 margin = Set(1e-9);
+    const D2 box_x0 = D2{_mm_min_pd(ex0.v, ex1.v)} - margin;
+    const D2 box_x1 = D2{_mm_max_pd(ex0.v, ex1.v)} + margin;
+    const D2 box_y0 = D2{_mm_min_pd(ey0.v, ey1.v)} - margin;
+    const D2 box_y1 = D2{_mm_max_pd(ey0.v, ey1.v)} + margin;
+    const __m128d on_extent = _mm_and_pd(_mm_and_pd(LessEqual(box_x0, hx), LessEqual(-hx, box_x1)),
+                                         _mm_and_pd(LessEqual(box_y0, hy), LessEqual(-hy, box_y1)));
+    const __m128d hit = _mm_and_pd(Greater(t1, t0), on_extent);
+    if (_mm_movemask_pd(hit) == 0) {
+      hits_mask[j] = hit;
+      fallback_mask[j] = fallback;
+      continue;
+    }
+    const D2 h2 = ds[0] * ds[0] + ds[1] * ds[1];
+    for (size_t n = 0; n < p.pits.size(); ++n) {
+      const CavitationPit& pit = p.pits[n];
+      const D2 reach = Set(pit_reach_[n]);
+      const D2 pcx = Set(pit.centre_S.x()), pcy = Set(pit.centre_S.y());
+      const __m128d in_square =
+          _mm_and_pd(_mm_and_pd(LessEqual(box_x0, pcx + reach), LessEqual(pcx - reach, box_x1)),
+                     _mm_and_pd(LessEqual(box_y0, pcy + reach), LessEqual(pcy - reach, box_y1)));
+      if (_mm_movemask_pd(_mm_and_pd(hit, in_square)) == 0) continue;
+      const D2 cut = Set(pit_cutoff2_[n]);
+      const D2 cx = os[0] - Set(pit.centre_S.x()), cy = os[1] - Set(pit.centre_S.y());
+      const D2 cd = -(cx * ds[0] + cy * ds[1]), c2 = cx * cx + cy * cy;
+      const D2 fx0 = cx + t0 * ds[0], fy0 = cy + t0 * ds[1];
+      const D2 fx1 = cx + t1 * ds[0], fy1 = cy + t1 * ds[1];
+      const __m128d near0 = LessEqual(fx0 * fx0 + fy0 * fy0, cut);
+      const __m128d near1 = LessEqual(fx1 * fx1 + fy1 * fy1, cut);
+      const __m128d near = LessEqual(c2 * h2 - cd * cd, cut * h2);
+      const __m128d before = LessEqual(cd, t0 * h2), after = _mm_cmpge_pd(cd.v, (t1 * h2).v);
+      const __m128d active = _mm_or_pd(
+          _mm_and_pd(before, near0),
+          _mm_andnot_pd(before, _mm_or_pd(_mm_and_pd(after, near1), _mm_andnot_pd(after, near))));
+      fallback = _mm_or_pd(fallback, _mm_and_pd(hit, active));
+    }
+    qas[j] = -(hkxx * ds[0] * ds[0] + hkyy * ds[1] * ds[1] + Kxy * ds[0] * ds[1]);
+    qbs[j] =
+        ds[2] - (Kxx * os[0] * ds[0] + Kyy * os[1] * ds[1] + Kxy * (os[0] * ds[1] + os[1] * ds[0]));
+    qcs[j] = os[2] - (hkxx * os[0] * os[0] + hkyy * os[1] * os[1] + Kxy * os[0] * os[1]);
+    fallback_mask[j] = _mm_or_pd(fallback, _mm_and_pd(hit, Equal(qas[j], Set(0.0))));
+    hits_mask[j] = hit;
+    sox[j] = os[0];
+    soy[j] = os[1];
+    sdx[j] = ds[0];
+    sdy[j] = ds[1];
+    t0s[j] = t0;
+    t1s[j] = t1;
+  }
+
+  // 2. The quadric's first root on the stretch and within the extent (IntersectHeightfield's
+  // pit-free branch). t, x, y overwrite t0s, sox, soy.
+  for (int j = 0; j < pairs; ++j) {
+    if (_mm_movemask_pd(hits_mask[j]) == 0) continue;
+    const D2 qa = qas[j], qb = qbs[j], qc = qcs[j], t0 = t0s[j], t1 = t1s[j];
+    const D2 disc = qb * qb - Set(4.0) * qa * qc;
+    __m128d hit = _mm_and_pd(hits_mask[j], Greater(disc, Set(0.0)));
+    const D2 q = Set(-0.5) * (qb + CopySignOfPositive(Sqrt(disc), qb));
+    const D2 s0 = q / qa;
+    const D2 s1 = Select(NotEqual(q, Set(0.0)), qc / q, s0);
+    const __m128d order = Greater(s0, s1);
+    const D2 r0 = Select(order, s1, s0), r1 = Select(order, s0, s1);
+    const D2 x0 = sox[j] + r0 * sdx[j], y0 = soy[j] + r0 * sdy[j];
+    const D2 x1 = sox[j] + r1 * sdx[j], y1 = soy[j] + r1 * sdy[j];
+    const __m128d use0 = _mm_and_pd(_mm_and_pd(Greater(r0, t0), LessEqual(r0, t1)),
+                                    _mm_and_pd(LessEqual(Abs(x0), hx), LessEqual(Abs(y0), hy)));
+    const __m128d use1 = _mm_and_pd(_mm_and_pd(Greater(r1, t0), LessEqual(r1, t1)),
+                                    _mm_and_pd(LessEqual(Abs(x1), hx), LessEqual(Abs(y1), hy)));
+    hits_mask[j] = _mm_and_pd(hit, _mm_or_pd(use0, use1));
+    t0s[j] = Select(use0, r0, r1);
+    sox[j] = Select(use0, x0, x1);
+    soy[j] = Select(use0, y0, y1);
+  }
+
+  // 3. Normal (in S, then in C facing the ray), shading and the planes' distances
+  // (IntersectSurface, TraceDetailed); then per ray the stripes and the hit.
+  const bool on[2] = {p.fixed_on, p.rotating_on};
+  const double inverse_two_sigma2 = 1.0 / (2.0 * p.stripe_sigma * p.stripe_sigma);
+  for (int j = 0; j < pairs; ++j) {
+    if (_mm_movemask_pd(hits_mask[j]) == 0) {
+      for (int lane = 0; lane < 2 && 2 * j + lane < count; ++lane) {
+        const int k = 2 * j + lane;
+        done[k] = ((_mm_movemask_pd(fallback_mask[j]) >> lane) & 1) == 0;
+        hits[k].radiance = p.background;
+        hits[k].object = kLaserBackground;
+        hits[k].depth = kNoHit;
+      }
+      continue;
+    }
+    const D2 t = t0s[j], x = sox[j], y = soy[j];
+    const D2 fx = Kxx * x + Kxy * y, fy = Kyy * y + Kxy * x;
+    const D2 inverse_norm = Set(1.0) / Sqrt(fx * fx + fy * fy + Set(1.0));
+    const D2 n_S[3] = {-fx * inverse_norm, -fy * inverse_norm, inverse_norm};
+    D2 n_C[3];
+    for (int row = 0; row < 3; ++row) {
+      n_C[row] =
+          Set(R_CS_(row, 0)) * n_S[0] + Set(R_CS_(row, 1)) * n_S[1] + Set(R_CS_(row, 2)) * n_S[2];
+    }
+    const __m128d flip = Greater(n_C[0] * dx[j] + n_C[1] * dy[j] + n_C[2] * dz[j], Set(0.0));
+    for (D2& n : n_C) n = Select(flip, -n, n);
+    const D2 px = ox[j] + t * dx[j], py = oy[j] + t * dy[j], pz = oz[j] + t * dz[j];
+    const D2 cosine = n_C[0] * dx[j] + n_C[1] * dy[j] + n_C[2] * dz[j];
+    const D2 radiance = Set(p.ambient) * (Set(0.3) + Set(0.7) * Abs(cosine));
+    D2 distance[2];
+    for (int i = 0; i < 2; ++i) {
+      const Eigen::Vector3d& n = planes_[i].normal;
+      const Eigen::Vector3d& c = planes_[i].point;
+      distance[i] = Set(n.x()) * (px - Set(c.x())) + Set(n.y()) * (py - Set(c.y())) +
+                    Set(n.z()) * (pz - Set(c.z()));
+    }
+    const int fallback_bits = _mm_movemask_pd(fallback_mask[j]);
+    const int hit_bits = _mm_movemask_pd(hits_mask[j]);
+    for (int lane = 0; lane < 2; ++lane) {
+      const int k = 2 * j + lane;
+      if (k >= count) break;
+      done[k] = ((fallback_bits >> lane) & 1) == 0;
+      if (!done[k]) continue;
+      Hit& out = hits[k];
+      if (((hit_bits >> lane) & 1) == 0) {
+        out.radiance = p.background;
+        out.object = kLaserBackground;
+        out.depth = kNoHit;
+        continue;
+      }
+      double value = Lane(radiance, lane);
+      for (int i = 0; i < 2; ++i) {
+        if (!on[i]) continue;
+        const double e = Lane(distance[i], lane);
+        const double d2 = e * e;
+        if (d2 * inverse_two_sigma2 > 32.0) continue;  // as TraceDetailed (no shadows on a blade)
+        value += p.laser_peak * std::exp(-d2 * inverse_two_sigma2);
+      }
+      out.radiance = std::min(value, 1.0);
+      out.object = kLaserSurface;
+      out.depth = Lane(t, lane);
+    }
+  }
+}
 
 std::vector<Eigen::Vector3d> LaserScene::StripeCurve(LaserId id, double spacing) const {
   std::vector<Eigen::Vector3d> points;

@@ -136,6 +136,9 @@ class LaserScene final : public Scene {
   explicit LaserScene(const LaserSceneParameters& parameters);
 
   Hit Trace(const Ray& ray_C) const override;
+  // Exactly Trace() for each ray (bit for bit); the blade's pit-free rays two at a time (SSE2),
+  // in stages over chunks of rays, the others through Trace().
+  void TraceBatch(const RayBatch& rays, Hit* hits) const override;
   LaserHit TraceDetailed(const Ray& ray_C) const;
 
   const LaserSceneParameters& parameters() const { return parameters_; }
@@ -170,9 +173,19 @@ class LaserScene final : public Scene {
   // from pit k's centre beyond which its term is below it.
   static constexpr double kNegligiblePitHeight = 1e-15;
   std::vector<double> pit_cutoff2_;
-  double height_bound_ = 0.0;  // |f| ≤ height_bound_ + Σ h_k over the extent
+  std::vector<double> pit_reach_;  // √pit_cutoff2_, rounded up (TraceChunk's square test)
+  double height_bound_ = 0.0;      // |f| ≤ height_bound_ + Σ h_k over the extent
   double pit_depth_sum_ = 0.0;
   double min_pit_sigma_ = 0.0;
+  // TraceBatch's two-ray path is used for the blade (no gauge block) with curvature (its
+  // quadric's leading coefficient is then non-zero for most rays).
+  bool batch_fast_path_ = false;
+
+  // Trace() of rays [first, first + count) of `rays` (count ≤ kChunkRays) whose quadric-only
+  // intersection settles them (see TraceBatch); done[k] false for a ray it could not settle (a pit
+  // within reach, a degenerate quadric).
+  static constexpr int kChunkRays = 64;
+  void TraceChunk(const RayBatch& rays, int first, int count, Hit* hits, bool* done) const;
 };
 
 }  // namespace kinevis::vision::render

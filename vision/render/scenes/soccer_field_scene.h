@@ -118,6 +118,7 @@ class SoccerFieldScene final : public Scene {
                    const SoccerFieldSceneParameters& parameters);
 
   Hit Trace(const Ray& ray_C) const override;
+  void TraceBatch(const RayBatch& rays, Hit* hits) const override;  // exactly Trace() per ray
 
   const SoccerFieldSceneParameters& parameters() const { return parameters_; }
   const Eigen::Isometry3d& X_CG() const { return X_CG_; }
@@ -183,6 +184,8 @@ class SoccerFieldScene final : public Scene {
 
   // on_line of ClassifyGround() for a point on the carpet, through the grid.
   bool OnLine(const Eigen::Vector2d& p_F) const;
+  // Trace() of the ray from o along d (both in C).
+  Hit TraceRay(const Eigen::Vector3d& o, const Eigen::Vector3d& d) const;
 };
 
 }  // namespace kinevis::vision::render
