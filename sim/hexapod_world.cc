@@ -351,6 +351,32 @@ std::string HexapodWorldConfig::Validate() const {
   return p.Message();
 }
 
+std::vector<WorldCameraConfig> DefaultHexapodCameras() {
+  const auto pose = [](const Eigen::Vector3d& p, double roll_deg, double pitch_deg,
+                       double yaw_deg) {
+    constexpr double kDeg = M_PI / 180.0;
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.translation() = p;
+    X.linear() = (Eigen::AngleAxisd(yaw_deg * kDeg, Eigen::Vector3d::UnitZ()) *
+                  Eigen::AngleAxisd(pitch_deg * kDeg, Eigen::Vector3d::UnitY()) *
+                  Eigen::AngleAxisd(roll_deg * kDeg, Eigen::Vector3d::UnitX()))
+                     .toRotationMatrix();
+    return X;
+  };
+  WorldCameraConfig perspective;
+  perspective.name = "hexapod-perspective";
+  perspective.model = "builtin:tsai-seed004";
+  perspective.X_WC = pose(Eigen::Vector3d(0.85, -1.47, 1.0), -115.2, 0, 30);
+  perspective.fps = 10;
+  perspective.render.supersampling = 4;
+  perspective.render.noise_sigma = 1.0;
+  WorldCameraConfig omni = perspective;
+  omni.name = "hexapod-omni";
+  omni.model = "builtin:unified-default";
+  omni.X_WC = pose(Eigen::Vector3d(0.0, 0.0, 0.03), 0, 0, 0);
+  return {perspective, omni};
+}
+
 robots::HexapodModel TrueHexapodModel(const HexapodWorldConfig& config) {
   robots::HexapodModel truth = config.nominal;
   std::mt19937 rng(config.seed);

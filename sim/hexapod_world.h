@@ -194,6 +194,13 @@ struct HexapodWorldConfig {
 // std::invalid_argument naming the file and every bad key and value.
 HexapodWorldConfig LoadHexapodWorldConfig(const std::string& path);
 
+// The two cameras of config/hexapod-sim.yaml (a test keeps them equal): "hexapod-perspective"
+// (builtin:tsai-seed004, 1616×1216, in front of and above the robot, 30° round so that no leg
+// hides another) and "hexapod-omni" (builtin:unified-default, 640×480, between the legs 3 cm above
+// the base centre, mirror axis up), both at 10 fps with supersampling 4 and noise σ = 1 grey
+// level. For hosts that build a world without a config file (the hexapod commands' default).
+std::vector<WorldCameraConfig> DefaultHexapodCameras();
+
 // The true robot of a config: the nominal with the seeded perturbations. Deterministic.
 robots::HexapodModel TrueHexapodModel(const HexapodWorldConfig& config);
 

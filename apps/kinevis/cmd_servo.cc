@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -327,6 +328,15 @@ void AddCommonOptions(CLI::App* cmd, int* protocol, std::vector<int>* ids, std::
       ->excludes("--model");
 }
 
+// The Dynamixel commands need the serial port (a positional that `servo hexapod` does not have).
+const ServoOptions& NeedBackend(const ServoOptions& o) {
+  if (o.backend.empty()) {
+    throw std::invalid_argument(
+        "servo: give the serial port first, e.g. kinevis servo tty:/dev/ttyUSB0@1000000 ping");
+  }
+  return o;
+}
+
 }  // namespace
 
 void AddServoCommands(CLI::App& app, CLI::App& sim, CommandList* commands) {
@@ -334,8 +344,8 @@ void AddServoCommands(CLI::App& app, CLI::App& sim, CommandList* commands) {
   CLI::App* servo = app.add_subcommand(
       "servo", "Dynamixel servos on a serial bus: ping, read, move, torque, reboot");
   servo->require_subcommand(1);
-  servo->add_option("backend", o->backend, "Serial port: tty:DEVICE[@BAUD] (docs/backends.md)")
-      ->required();
+  // Not ->required(): `kinevis servo hexapod ...` has no backend; the Dynamixel commands check it.
+  servo->add_option("backend", o->backend, "Serial port: tty:DEVICE[@BAUD] (docs/backends.md)");
   AddCommonOptions(servo, &o->protocol, &o->ids, &o->model, &o->table_path);
   servo->add_option("--timeout-ms", o->timeout_ms, "Wait for each status packet, ms")
       ->capture_default_str()
@@ -346,13 +356,13 @@ void AddServoCommands(CLI::App& app, CLI::App& sim, CommandList* commands) {
   servo->footer("Example: kinevis servo tty:/dev/ttyUSB0@1000000 --protocol 1 --ids 1 read");
 
   CLI::App* ping = servo->add_subcommand("ping", "Ping each id; print model number and firmware");
-  commands->push_back({ping, [o] { return RunPing(*o); }});
+  commands->push_back({ping, [o] { return RunPing(NeedBackend(*o)); }});
 
   CLI::App* read = servo->add_subcommand(
       "read", "Configure each servo (model check, limits) and print its state");
   read->add_option("-r,--register", o->registers,
                    "Also print these registers of the control table (raw and SI)");
-  commands->push_back({read, [o] { return RunRead(*o); }});
+  commands->push_back({read, [o] { return RunRead(NeedBackend(*o)); }});
 
   CLI::App* move = servo->add_subcommand(
       "move", "Torque on and go to a position; wait until it is reached (torque stays on)");
@@ -366,17 +376,17 @@ void AddServoCommands(CLI::App& app, CLI::App& sim, CommandList* commands) {
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
   move->add_flag("--no-wait", o->no_wait, "Return once the goal is written");
-  commands->push_back({move, [o] { return RunMove(*o); }});
+  commands->push_back({move, [o] { return RunMove(NeedBackend(*o)); }});
 
   CLI::App* torque = servo->add_subcommand("torque", "Torque on (hold) or off (the safe state)");
   torque->add_option("state", o->torque, "on or off")
       ->required()
       ->check(CLI::IsMember({"on", "off"}));
-  commands->push_back({torque, [o] { return RunTorque(*o); }});
+  commands->push_back({torque, [o] { return RunTorque(NeedBackend(*o)); }});
 
   CLI::App* reboot = servo->add_subcommand(
       "reboot", "Reboot (protocol 2.0): clears an overload or other hardware alarm");
-  commands->push_back({reboot, [o] { return RunReboot(*o); }});
+  commands->push_back({reboot, [o] { return RunReboot(NeedBackend(*o)); }});
 
   auto so = std::make_shared<SimOptions>();
   CLI::App* dxl = sim.add_subcommand(

@@ -31,6 +31,9 @@ void AddSimWorldCommands(CLI::App& sim, CommandList* commands);
 void AddCellWorldCommands(CLI::App& world, CommandList* commands);
 // `kinevis model hexapod|diamond|weld5 fk|ik ...` and `kinevis project MODEL ...`.
 void AddModelCommands(CLI::App& app, CommandList* commands);
+// `kinevis record hexapod`, `kinevis calibrate hexapod`, `kinevis servo hexapod`: `calibrate` and
+// `servo` are the existing subcommands (AddCalibrateCommands, AddServoCommands run first).
+void AddHexapodCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo, CommandList* commands);
 void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
 // Called by AddDriveCommands: `kinevis sim drive` and `kinevis sim rs485-drive`.
 void AddDriveSimCommands(CLI::App& sim, CommandList* commands);

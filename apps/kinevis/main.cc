@@ -44,6 +44,8 @@ int main(int argc, char** argv) {
   AddCameraCommands(app, &commands);
   AddCalibrateCommands(app, &commands);
   AddModelCommands(app, &commands);
+  AddHexapodCommands(app, *app.get_subcommand("calibrate"), *app.get_subcommand("servo"),
+                     &commands);
 
   try {
     app.parse(argc, argv);

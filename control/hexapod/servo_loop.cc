@@ -1,0 +1,503 @@
+#include "control/hexapod/servo_loop.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+#include "hal/drive/cia402_can_drive.h"
+#include "vision/plot/line_plot.h"
+
+namespace kinevis::control {
+namespace {
+
+hal::Duration Seconds(double s) {
+  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
+}
+double ToSeconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
+
+class Problems {
+ public:
+  void Add(const std::string& field, double value, const char* rule) {
+    std::ostringstream out;
+    out << (text_.empty() ? "" : "; ") << field << ": " << rule << ", got " << value;
+    text_ += out.str();
+  }
+  void Positive(const std::string& field, double v) {
+    if (!(std::isfinite(v) && v > 0)) Add(field, v, "must be finite and > 0");
+  }
+  void NonNegative(const std::string& field, double v) {
+    if (!(std::isfinite(v) && v >= 0)) Add(field, v, "must be finite and >= 0");
+  }
+  const std::string& text() const { return text_; }
+
+ private:
+  std::string text_;
+};
+
+}  // namespace
+
+std::string GroundTruthFeatureOptions::Validate() const {
+  Problems p;
+  p.Positive("fps", fps);
+  p.NonNegative("noise_sigma", noise_sigma);
+  return p.text();
+}
+
+GroundTruthLegFeatureSource::GroundTruthLegFeatureSource(robots::HexapodModel true_model,
+                                                         const Eigen::Isometry3d& X_CB,
+                                                         PoseProvider pose,
+                                                         GroundTruthFeatureOptions options)
+    : model_(std::move(true_model)),
+      X_CB_(X_CB),
+      pose_(std::move(pose)),
+      options_(options),
+      rng_(options.seed) {
+  std::string message = options.Validate();
+  if (!pose_) message += std::string(message.empty() ? "" : "; ") + "pose: empty provider";
+  if (!message.empty()) throw std::invalid_argument("GroundTruthLegFeatureSource: " + message);
+}
+
+bool GroundTruthLegFeatureSource::Poll(hal::Duration now, LegFeatureFrame* frame) {
+  if (!started_) {
+    next_frame_ = now;
+    started_ = true;
+  }
+  if (now < next_frame_) return false;
+  // The camera keeps its own rate whatever the loop does; frames missed while paused are lost.
+  const hal::Duration period = Seconds(1.0 / options_.fps);
+  while (next_frame_ <= now) next_frame_ += period;
+  if (paused_) return false;
+  robots::InverseKinematics(model_, pose_(), &data_);
+  for (int j = 0; j < kHexapodLegs; ++j) {
+    Eigen::Vector3d u = X_CB_.linear() * data_.u_B[j];
+    if (options_.noise_sigma > 0) {
+      for (int k = 0; k < 3; ++k) u[k] += options_.noise_sigma * noise_(rng_);
+      u.normalize();
+    }
+    frame->u_C[j] = u;
+    frame->visible[j] = !hidden_[j] && data_.q[j] > 0;
+  }
+  frame->timestamp = now;
+  frame->sequence = ++sequence_;
+  return true;
+}
+
+void GroundTruthLegFeatureSource::SetLegHidden(int leg, bool hidden) {
+  if (leg >= 0 && leg < kHexapodLegs) hidden_[leg] = hidden;
+}
+void GroundTruthLegFeatureSource::SetPaused(bool paused) { paused_ = paused; }
+
+std::string ServoLoopOptions::Validate() const {
+  Problems p;
+  p.Positive("cycle_period_s", cycle_period_s);
+  p.Positive("max_leg_velocity", max_leg_velocity);
+  p.NonNegative("stroke_margin", stroke_margin);
+  p.Positive("stop_deceleration", stop_deceleration);
+  if (min_visible_legs < 3 || min_visible_legs > kHexapodLegs) {
+    p.Add("min_visible_legs", min_visible_legs, "must be in 3..6");
+  }
+  p.Positive("stale_camera_timeout_s", stale_camera_timeout_s);
+  p.Positive("convergence_threshold", convergence_threshold);
+  p.NonNegative("convergence_translation", convergence_translation);
+  p.NonNegative("convergence_rotation", convergence_rotation);
+  p.NonNegative("convergence_filter_s", convergence_filter_s);
+  p.NonNegative("convergence_dwell_s", convergence_dwell_s);
+  p.Positive("timeout_s", timeout_s);
+  return p.text();
+}
+
+const char* ToString(ServoLoopState state) {
+  switch (state) {
+    case ServoLoopState::kRunning:
+      return "running";
+    case ServoLoopState::kHoldLegLost:
+      return "hold_leg_lost";
+    case ServoLoopState::kHoldStaleCamera:
+      return "hold_stale_camera";
+    case ServoLoopState::kHoldLaw:
+      return "hold_law";
+    case ServoLoopState::kWaitFirstFrame:
+      return "wait_first_frame";
+    case ServoLoopState::kStopping:
+      return "stopping";
+  }
+  return "?";
+}
+
+const char* ToString(ServoLoopOutcome outcome) {
+  switch (outcome) {
+    case ServoLoopOutcome::kConverged:
+      return "converged";
+    case ServoLoopOutcome::kStrokeLimit:
+      return "stroke limit";
+    case ServoLoopOutcome::kDriveFault:
+      return "drive fault";
+    case ServoLoopOutcome::kTimeout:
+      return "timeout";
+    case ServoLoopOutcome::kNotStarted:
+      return "not started";
+  }
+  return "?";
+}
+
+ServoLoop::ServoLoop(hal::DriveBus* bus, hal::Clock* clock, LegFeatureSource* source,
+                     const robots::HexapodModel& model, LegServo* law, ServoLoopOptions options)
+    : bus_(bus), clock_(clock), source_(source), model_(model), law_(law), options_(options) {
+  std::string message = options.Validate();
+  const auto add = [&](const std::string& text) {
+    message += (message.empty() ? "" : "; ") + text;
+  };
+  if (!bus || !clock || !source || !law) add("bus, clock, source and law must not be null");
+  if (bus) {
+    drives_ = bus->drives();
+    if (drives_.size() != static_cast<size_t>(kHexapodLegs)) {
+      add("bus " + bus->name() + ": has " + std::to_string(drives_.size()) + " drives, expected 6");
+    }
+  }
+  const std::string model_problems = model.Validate();
+  if (!model_problems.empty()) add("model: " + model_problems);
+  if (!message.empty()) throw std::invalid_argument("ServoLoop: " + message);
+}
+
+void ServoLoop::SetRates(const Vector6d& q_dot, Vector6d* s_target) {
+  for (int j = 0; j < kHexapodLegs; ++j) {
+    std::error_code ec;
+    if (options_.command_mode == DriveCommandMode::kVelocity) {
+      ec = drives_[j]->SetTargetVelocity(q_dot[j]);
+    } else {
+      (*s_target)[j] += q_dot[j] * options_.cycle_period_s;
+      ec = drives_[j]->SetTargetPosition((*s_target)[j]);
+    }
+    // Refusals (not active) show as a fault at the next Cycle(); nothing to do here.
+    (void)ec;
+  }
+}
+
+void ServoLoop::StopAndSettle(Vector6d* s_target) {
+  const hal::Duration period = Seconds(options_.cycle_period_s);
+  const hal::Duration end = clock_->Now() + Seconds(1.0);
+  hal::Duration next = clock_->Now() + period;
+  SetRates(Vector6d::Zero(), s_target);
+  while (clock_->Now() < end) {
+    clock_->SleepUntil(next);
+    next += period;
+    if (bus_->Cycle()) return;
+    bool still = true;
+    for (hal::MotorDrive* d : drives_) still = still && std::abs(d->status().velocity) < 1e-6;
+    if (still) return;
+    SetRates(Vector6d::Zero(), s_target);
+  }
+}
+
+void ServoLoop::StopAllOnFault(ServoLoopReport* report) {
+  std::ostringstream out;
+  for (int j = 0; j < kHexapodLegs; ++j) {
+    const hal::DriveStatus st = drives_[j]->status();
+    if (drives_[j]->lifecycle() != hal::DeviceLifecycle::kFault &&
+        st.fault_source == hal::DriveFaultSource::kNone) {
+      continue;
+    }
+    if (report->faulted_drive < 0) report->faulted_drive = j;
+    out << (out.tellp() > 0 ? "; " : "") << "leg " << j << " drive " << drives_[j]->name() << ": "
+        << (st.fault_source == hal::DriveFaultSource::kLink ? "link lost (heartbeat)"
+                                                            : "device fault")
+        << ", error code 0x" << std::hex << st.error_code << std::dec;
+    if (const auto* host = dynamic_cast<const hal::Cia402HostDrive*>(drives_[j])) {
+      if (!host->last_error_text().empty()) out << " (" << host->last_error_text() << ")";
+    }
+  }
+  // The bus has already put the faulted drive in a safe state and (quick_stop_all_on_fault)
+  // asked the others to quick-stop; make sure of it here, whatever the bus's policy: quick stop
+  // (or disable) every drive, then keep cycling until every leg is at rest, since a drive only
+  // receives its controlword with the cycles.
+  for (hal::MotorDrive* d : drives_) {
+    std::error_code ec;
+    if (options_.stop_action == StopAction::kDisable) {
+      if (d->lifecycle() != hal::DeviceLifecycle::kFault) ec = d->Disable();
+    } else if (d->lifecycle() == hal::DeviceLifecycle::kActive) {
+      ec = d->QuickStop();
+    }
+    if (ec) spdlog::warn("servo loop: stopping {} failed: {}", d->name(), ec.message());
+  }
+  const hal::Duration period = Seconds(options_.cycle_period_s);
+  const hal::Duration end = clock_->Now() + Seconds(1.0);
+  for (hal::Duration next = clock_->Now() + period; clock_->Now() < end; next += period) {
+    clock_->SleepUntil(next);
+    bus_->Cycle();  // keeps reporting the fault; the stop is what matters now
+    bool still = true;
+    for (hal::MotorDrive* d : drives_) still = still && std::abs(d->status().velocity) < 1e-6;
+    if (still) break;
+  }
+  report->message += out.str();
+}
+
+ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>& observer) {
+  ServoLoopReport report;
+  const double period_s = options_.cycle_period_s;
+  const hal::Duration period = Seconds(period_s);
+  report.samples.reserve(static_cast<size_t>(options_.timeout_s / period_s) + 16);
+  law_->Reset();
+
+  const hal::DriveMode mode = options_.command_mode == DriveCommandMode::kVelocity
+                                  ? hal::DriveMode::kCyclicSynchronousVelocity
+                                  : hal::DriveMode::kCyclicSynchronousPosition;
+  Vector6d s_target;
+  for (int j = 0; j < kHexapodLegs; ++j) {
+    s_target[j] = drives_[j]->status().position;
+    if (mode == hal::DriveMode::kCyclicSynchronousVelocity) {
+      drives_[j]->SetTargetVelocity(0.0);
+    } else {
+      drives_[j]->SetTargetPosition(s_target[j]);
+    }
+    if (const std::error_code ec = drives_[j]->SetMode(mode)) {
+      report.outcome = ServoLoopOutcome::kDriveFault;
+      report.faulted_drive = j;
+      report.message = "leg " + std::to_string(j) + " drive " + drives_[j]->name() +
+                       ": cannot select " + hal::ToString(mode) + ": " + ec.message();
+      return report;
+    }
+  }
+
+  const hal::Duration start = clock_->Now();
+  hal::Duration next = start;
+  hal::Duration last_frame_time = start;
+  bool have_frame = false;
+  double converged_since = -1;
+  bool converged_by_error = true;
+  Vector6d filtered_displacement = Vector6d::Zero();
+  bool have_displacement = false;
+  hal::Duration last_displacement_time = start;
+  LegFeatureFrame frame;
+  Vector6d q_dot_law = Vector6d::Zero();  // held between frames
+  ServoLoopSample sample;
+  sample.error_norm = std::numeric_limits<double>::quiet_NaN();
+  const double q_min = model_.leg_length_min + options_.stroke_margin;
+  const double q_max = model_.leg_length_max - options_.stroke_margin;
+
+  for (;;) {
+    next += period;
+    clock_->SleepUntil(next);
+    const hal::Duration now = clock_->Now();
+    const double t = ToSeconds(now - start);
+    ++report.cycles;
+
+    // 1. The bus: a fault of any drive stops all six.
+    const std::error_code cycle_error = bus_->Cycle();
+    bool faulted = static_cast<bool>(cycle_error);
+    for (hal::MotorDrive* d : drives_) {
+      faulted = faulted || d->lifecycle() == hal::DeviceLifecycle::kFault;
+    }
+    if (faulted) {
+      report.outcome = ServoLoopOutcome::kDriveFault;
+      report.message = std::string("drive fault at t = ") + std::to_string(t) + " s (bus " +
+                       bus_->name() + ": " +
+                       (cycle_error ? cycle_error.message() : std::string("no error")) + "): ";
+      StopAllOnFault(&report);
+      spdlog::error("servo loop: {}", report.message);
+      break;
+    }
+
+    Vector6d s;
+    for (int j = 0; j < kHexapodLegs; ++j) s[j] = drives_[j]->status().position;
+    const Vector6d q = robots::LegLengthsFromJointPositions(model_, s);
+
+    // 2. A camera frame: run the law.
+    sample.new_frame = source_->Poll(now, &frame);
+    if (sample.new_frame) {
+      ++report.frames;
+      have_frame = true;
+      last_frame_time = now;
+      sample.u_C = frame.u_C;
+      sample.visible = frame.visible;
+      int visible = 0;
+      for (int j = 0; j < kHexapodLegs; ++j) {
+        visible += frame.visible[j] ? 1 : 0;
+        if (!frame.visible[j]) report.legs_lost[j] = true;
+      }
+      const LegServoResult r = law_->Compute(frame.u_C, frame.visible, q);
+      ++report.law_steps;
+      sample.error_norm = r.error_norm;
+      if (visible < options_.min_visible_legs) {
+        sample.state = ServoLoopState::kHoldLegLost;
+        q_dot_law.setZero();
+      } else if (!r.ok()) {
+        sample.state = ServoLoopState::kHoldLaw;
+        q_dot_law.setZero();
+      } else {
+        sample.state = ServoLoopState::kRunning;
+        q_dot_law = r.q_dot;
+      }
+      // The remaining displacement of one frame carries the features' noise: it is judged
+      // after a first-order low-pass over the frames (time constant convergence_filter_s).
+      if (r.ok()) {
+        const double dt = have_displacement ? ToSeconds(now - last_displacement_time) : 0.0;
+        const double a = have_displacement && options_.convergence_filter_s > 0
+                             ? 1.0 - std::exp(-dt / options_.convergence_filter_s)
+                             : 1.0;
+        filtered_displacement += a * (r.remaining_displacement - filtered_displacement);
+        have_displacement = true;
+        last_displacement_time = now;
+      }
+      sample.remaining_translation = filtered_displacement.head<3>().norm();
+      sample.remaining_rotation = filtered_displacement.tail<3>().norm();
+      const bool error_small = r.error_norm <= options_.convergence_threshold;
+      const bool displacement_small =
+          r.ok() && options_.convergence_translation > 0 && options_.convergence_rotation > 0 &&
+          sample.remaining_translation <= options_.convergence_translation &&
+          sample.remaining_rotation <= options_.convergence_rotation;
+      if (visible == kHexapodLegs && (error_small || displacement_small)) {
+        if (report.time_to_threshold_s < 0) report.time_to_threshold_s = t;
+        if (converged_since < 0) converged_since = t;
+        converged_by_error = error_small;
+      } else {
+        converged_since = -1;
+      }
+    } else if (!have_frame) {
+      sample.state = ServoLoopState::kWaitFirstFrame;
+    }
+    if (have_frame && ToSeconds(now - last_frame_time) > options_.stale_camera_timeout_s) {
+      sample.state = ServoLoopState::kHoldStaleCamera;
+      q_dot_law.setZero();
+      converged_since = -1;
+    }
+    switch (sample.state) {
+      case ServoLoopState::kHoldLegLost:
+        ++report.hold_cycles_leg_lost;
+        break;
+      case ServoLoopState::kHoldStaleCamera:
+        ++report.hold_cycles_stale_camera;
+        break;
+      case ServoLoopState::kHoldLaw:
+        ++report.hold_cycles_law;
+        break;
+      default:
+        break;
+    }
+
+    // 3. Safety: velocity limit (uniform scaling), then strokes.
+    Vector6d q_dot = q_dot_law;
+    const double fastest = q_dot.cwiseAbs().maxCoeff();
+    if (fastest > options_.max_leg_velocity) {
+      q_dot *= options_.max_leg_velocity / fastest;
+      ++report.velocity_scaled_cycles;
+    }
+    for (int j = 0; j < kHexapodLegs && report.stroke_leg < 0; ++j) {
+      // Where leg j would stop: two cycles at the commanded rate (this one and the bus latency)
+      // and then braking at stop_deceleration; also the leg as it is now.
+      const double v = q_dot[j];
+      const double q_stop =
+          q[j] + 2.0 * period_s * v + v * std::abs(v) / (2.0 * options_.stop_deceleration);
+      const bool out_high = (q_stop > q_max && v > 0) || q[j] > q_max;
+      const bool out_low = (q_stop < q_min && v < 0) || q[j] < q_min;
+      if (out_high || out_low) {
+        report.stroke_leg = j;
+        std::ostringstream out;
+        out << "leg " << j << " would leave its stroke: q = " << q[j] << " m, rate " << v
+            << " m/s, stopping at " << q_stop << " m, limits [" << q_min << ", " << q_max
+            << "] m (leg_length_min/max with stroke_margin " << options_.stroke_margin << " m)";
+        report.message = out.str();
+      }
+    }
+    if (report.stroke_leg >= 0) q_dot.setZero();
+
+    SetRates(q_dot, &s_target);
+    sample.time_s = t;
+    sample.q = q;
+    sample.q_dot = q_dot;
+    report.samples.push_back(sample);
+    if (observer) observer(report.samples.back());
+
+    if (report.stroke_leg >= 0) {
+      report.outcome = ServoLoopOutcome::kStrokeLimit;
+      spdlog::warn("servo loop: {}", report.message);
+      break;
+    }
+    if (converged_since >= 0 && t - converged_since >= options_.convergence_dwell_s) {
+      report.outcome = ServoLoopOutcome::kConverged;
+      std::ostringstream out;
+      if (converged_by_error) {
+        out << "converged: |e| <= " << options_.convergence_threshold;
+      } else {
+        out << "converged: remaining displacement <= " << 1e3 * options_.convergence_translation
+            << " mm and " << options_.convergence_rotation * 180 / M_PI
+            << " deg (|e| = " << sample.error_norm << ")";
+      }
+      out << " for " << options_.convergence_dwell_s << " s";
+      report.message = out.str();
+      report.converged_by_error = converged_by_error;
+      break;
+    }
+    if (t >= options_.timeout_s) {
+      report.outcome = ServoLoopOutcome::kTimeout;
+      report.message = "timeout after " + std::to_string(options_.timeout_s) +
+                       " s, |e| = " + std::to_string(sample.error_norm);
+      break;
+    }
+  }
+
+  if (report.outcome != ServoLoopOutcome::kDriveFault) StopAndSettle(&s_target);
+  report.duration_s = ToSeconds(clock_->Now() - start);
+  report.final_error_norm = sample.error_norm;
+  Vector6d s;
+  for (int j = 0; j < kHexapodLegs; ++j) s[j] = drives_[j]->status().position;
+  report.final_q = robots::LegLengthsFromJointPositions(model_, s);
+  return report;
+}
+
+void WriteServoLogCsv(const std::string& path, const std::vector<ServoLoopSample>& samples) {
+  std::ofstream out(path);
+  if (!out) throw std::runtime_error(path + ": cannot open for writing");
+  out << "time_s,error_norm";
+  for (int j = 0; j < kHexapodLegs; ++j) out << ",u" << j << "_x,u" << j << "_y,u" << j << "_z";
+  for (int j = 0; j < kHexapodLegs; ++j) out << ",q" << j << "_m";
+  for (int j = 0; j < kHexapodLegs; ++j) out << ",qdot" << j << "_mps";
+  out << ",remaining_mm,remaining_deg,visible,state,new_frame\n";
+  out.precision(10);
+  for (const ServoLoopSample& s : samples) {
+    out << s.time_s << ',' << s.error_norm;
+    for (int j = 0; j < kHexapodLegs; ++j) {
+      out << ',' << s.u_C[j].x() << ',' << s.u_C[j].y() << ',' << s.u_C[j].z();
+    }
+    for (int j = 0; j < kHexapodLegs; ++j) out << ',' << s.q[j];
+    for (int j = 0; j < kHexapodLegs; ++j) out << ',' << s.q_dot[j];
+    out << ',' << 1e3 * s.remaining_translation << ',' << s.remaining_rotation * 180 / M_PI << ',';
+    for (int j = 0; j < kHexapodLegs; ++j) out << (s.visible[j] ? '1' : '0');
+    out << ',' << ToString(s.state) << ',' << (s.new_frame ? 1 : 0) << '\n';
+  }
+  if (!out) throw std::runtime_error(path + ": write failed");
+}
+
+void WriteConvergencePlot(const std::string& path, const std::vector<ServoLoopSample>& samples,
+                          double threshold, const std::string& title) {
+  vision::plot::LinePlotOptions o;
+  o.title = title;
+  o.x_label = "time (s)";
+  o.y_label = "|e|";
+  o.y_scale = vision::plot::AxisScale::kLog10;
+  vision::plot::LinePlot plot(o);
+  vision::plot::Series error;
+  error.name = "|e| (leg directions)";
+  for (const ServoLoopSample& s : samples) {
+    if (!s.new_frame) continue;
+    error.x.push_back(s.time_s);
+    error.y.push_back(s.error_norm);
+  }
+  vision::plot::Series line;
+  line.name = "threshold";
+  line.thickness_px = 1;
+  if (!samples.empty()) {
+    line.x = {samples.front().time_s, samples.back().time_s};
+    line.y = {threshold, threshold};
+  }
+  plot.AddSeries(std::move(error));
+  plot.AddSeries(std::move(line));
+  plot.WritePng(path);
+}
+
+}  // namespace kinevis::control

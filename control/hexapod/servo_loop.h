@@ -1,0 +1,207 @@
+#pragma once
+
+// The hexapod leg-direction servo loop (issue 6, seed 002 §V-B): runs on a hal::Clock at the
+// drive cycle over a hal::DriveBus of six drives (leg j = drive j of bus.drives()), takes leg
+// directions from a LegFeatureSource at the camera's own rate, runs the LegServo law once per
+// camera frame and holds the last leg rates between frames, and commands them in cyclic
+// synchronous velocity (CSV) or, by integrating them, cyclic synchronous position (CSP).
+//
+// Safety, checked every cycle (never by exceptions):
+//  - drive fault or heartbeat loss (DriveBus::Cycle() error, or a drive in fault): every drive
+//    is quick-stopped (or disabled), the run ends with kDriveFault naming the drive and cause;
+//  - stroke: a leg whose predicted stopping point (current length + commanded rate over two
+//    cycles + braking distance at stop_deceleration) would leave
+//    [leg_length_min + stroke_margin, leg_length_max − stroke_margin] stops everything: zero
+//    rates are commanded, the run ends with kStrokeLimit naming the leg. Nothing beyond the
+//    limits is ever commanded;
+//  - velocity: leg rates are scaled uniformly so that the fastest is at most max_leg_velocity
+//    (the direction of motion is kept);
+//  - a leg lost from the image (fewer than min_visible_legs visible) holds: zero rates for all
+//    legs until the legs are seen again (counted and reported);
+//  - a stale camera (no frame for stale_camera_timeout_s) holds likewise;
+//  - the law refusing (too few legs, rank < 6, bad input) holds likewise;
+//  - convergence: ‖e‖ <= convergence_threshold (or, when set, the remaining displacement below
+//    convergence_translation and convergence_rotation) for convergence_dwell_s -> kConverged;
+//  - timeout_s -> kTimeout.
+// Every ending commands zero rates and runs cycles until the legs are at rest (at most 1 s).
+//
+// Logs: per-cycle samples kept in memory (reserved before the run; no I/O in the loop) and
+// written after the run as CSV (columns documented in control/README.md) and a convergence plot
+// PNG (error norm vs time, log scale).
+
+#include <Eigen/Geometry>
+#include <cstdint>
+#include <functional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "control/hexapod/leg_servo.h"
+#include "hal/common/clock.h"
+#include "hal/drive/motor_drive.h"
+#include "robots/hexapod/hexapod_model.h"
+
+namespace kinevis::control {
+
+// One camera frame's features.
+struct LegFeatureFrame {
+  hal::Duration timestamp{0};  // when the image was taken (loop clock)
+  LegDirections u_C{};         // unit leg directions in C (valid where visible)
+  LegMask visible{};
+  uint64_t sequence = 0;
+};
+
+// Where the loop gets leg directions: image extraction (the lead plugs it in) or ground truth.
+class LegFeatureSource {
+ public:
+  virtual ~LegFeatureSource() = default;
+  // Called once per loop cycle at `now`; returns true and fills *frame when a new camera frame
+  // is available (its features), false when none is due yet. Must not block for long.
+  virtual bool Poll(hal::Duration now, LegFeatureFrame* frame) = 0;
+};
+
+struct GroundTruthFeatureOptions {
+  double fps = 50.0;             // camera frame rate, > 0
+  double noise_sigma = 0.0;      // per component of u (rad, before renormalising), >= 0
+  uint32_t seed = 1;             // of the noise
+  std::string Validate() const;  // empty when usable, else every bad field and its value
+};
+
+// Ground truth: u_j = R_CB u_j(X_BP) of the true model at the pose `pose()` returns at the
+// moment of the frame (e.g. [&world] { return world.plant().X_BP; }), plus optional noise.
+// Legs can be hidden (visible = false) and the camera paused (no frames: a stale camera).
+class GroundTruthLegFeatureSource final : public LegFeatureSource {
+ public:
+  using PoseProvider = std::function<Eigen::Isometry3d()>;
+  // Throws std::invalid_argument with options.Validate()'s message or for an empty provider.
+  GroundTruthLegFeatureSource(robots::HexapodModel true_model, const Eigen::Isometry3d& X_CB,
+                              PoseProvider pose, GroundTruthFeatureOptions options = {});
+  bool Poll(hal::Duration now, LegFeatureFrame* frame) override;
+  void SetLegHidden(int leg, bool hidden);
+  void SetPaused(bool paused);
+  uint64_t frames() const { return sequence_; }
+
+ private:
+  robots::HexapodModel model_;
+  Eigen::Isometry3d X_CB_;
+  PoseProvider pose_;
+  GroundTruthFeatureOptions options_;
+  std::mt19937 rng_;
+  std::normal_distribution<double> noise_{0.0, 1.0};
+  robots::HexapodData data_;
+  LegMask hidden_{};
+  bool paused_ = false;
+  bool started_ = false;
+  hal::Duration next_frame_{0};
+  uint64_t sequence_ = 0;
+};
+
+enum class DriveCommandMode { kVelocity, kPosition };  // CSV, or CSP by integrating q̇
+enum class StopAction { kQuickStop, kDisable };
+
+struct ServoLoopOptions {
+  double cycle_period_s = 0.004;  // drive cycle, > 0
+  DriveCommandMode command_mode = DriveCommandMode::kVelocity;
+  double max_leg_velocity = 0.05;       // m/s, > 0
+  double stroke_margin = 0.001;         // m, >= 0, kept from both stroke ends
+  double stop_deceleration = 0.5;       // m/s^2, > 0: braking assumed for stopping distances
+  int min_visible_legs = 6;             // 3..6; fewer visible -> hold
+  double stale_camera_timeout_s = 0.1;  // no frame for this long -> hold, > 0
+  double convergence_threshold = 1e-4;  // on ‖e‖, > 0
+  // Also converged when the law's remaining displacement (LegServoResult::
+  // remaining_displacement at the platform centre) stays below both of these: for desired
+  // features the true robot cannot reach exactly (u* from a model pose), where ‖e‖ stops at a
+  // floor above zero while the platform has arrived. 0 = off (the default). m and rad, >= 0.
+  double convergence_translation = 0.0;
+  double convergence_rotation = 0.0;
+  // Time constant (s, >= 0; 0 = none) of the first-order low-pass over the frames through which
+  // the remaining displacement is judged (one frame's carries the features' noise).
+  double convergence_filter_s = 0.5;
+  double convergence_dwell_s = 0.2;  // >= 0
+  double timeout_s = 10.0;           // > 0
+  StopAction stop_action = StopAction::kQuickStop;
+  std::string Validate() const;  // empty when usable, else every bad field and its value
+};
+
+enum class ServoLoopState {
+  kRunning,
+  kHoldLegLost,
+  kHoldStaleCamera,
+  kHoldLaw,
+  kWaitFirstFrame,
+  kStopping,
+};
+const char* ToString(ServoLoopState state);
+
+enum class ServoLoopOutcome { kConverged, kStrokeLimit, kDriveFault, kTimeout, kNotStarted };
+const char* ToString(ServoLoopOutcome outcome);
+
+// One loop cycle, as logged.
+struct ServoLoopSample {
+  double time_s = 0;      // since the start of the run
+  double error_norm = 0;  // ‖e‖ of the last frame (NaN before the first)
+  // |δp| (m) and |δθ| (rad) of the remaining displacement (LegServoResult), low-passed over the
+  // frames (convergence_filter_s).
+  double remaining_translation = 0;
+  double remaining_rotation = 0;
+  LegDirections u_C{};  // last measured directions
+  LegMask visible{};
+  Vector6d q = Vector6d::Zero();      // leg lengths (m) = q0 + drive positions
+  Vector6d q_dot = Vector6d::Zero();  // commanded leg rates (m/s), after the safety layer
+  ServoLoopState state = ServoLoopState::kWaitFirstFrame;
+  bool new_frame = false;
+};
+
+struct ServoLoopReport {
+  ServoLoopOutcome outcome = ServoLoopOutcome::kNotStarted;
+  std::string message;     // what ended the run, naming the drive or leg and the cause
+  int faulted_drive = -1;  // index in bus.drives() of the drive that faulted first
+  int stroke_leg = -1;     // leg that would have left its stroke
+  double duration_s = 0;
+  double final_error_norm = 0;
+  double time_to_threshold_s = -1;  // first frame meeting the convergence test; -1 if none
+  bool converged_by_error = true;   // kConverged by ‖e‖ (else by the remaining displacement)
+  uint64_t cycles = 0, frames = 0, law_steps = 0;
+  uint64_t hold_cycles_leg_lost = 0, hold_cycles_stale_camera = 0, hold_cycles_law = 0;
+  uint64_t velocity_scaled_cycles = 0;
+  LegMask legs_lost{};  // legs that were hidden at least once
+  Vector6d final_q = Vector6d::Zero();
+  std::vector<ServoLoopSample> samples;  // every cycle
+};
+
+class ServoLoop {
+ public:
+  // bus: six drives, leg j = bus->drives()[j], configured and enabled by the caller. clock: the
+  // bus's clock (SleepUntil paces the cycles). model: q0 and the strokes (the nominal model the
+  // host knows). law: with its desired features set. All must outlive the loop. Throws
+  // std::invalid_argument for invalid options, a bus without six drives or null pointers.
+  ServoLoop(hal::DriveBus* bus, hal::Clock* clock, LegFeatureSource* source,
+            const robots::HexapodModel& model, LegServo* law, ServoLoopOptions options = {});
+
+  // Runs until an outcome. observer (may be empty) sees every sample as it is made (tests
+  // inject faults from it). Does not throw for run-time faults: they are the report.
+  ServoLoopReport Run(const std::function<void(const ServoLoopSample&)>& observer = {});
+
+ private:
+  void SetRates(const Vector6d& q_dot, Vector6d* s_target);
+  void StopAndSettle(Vector6d* s_target);
+  void StopAllOnFault(ServoLoopReport* report);
+
+  hal::DriveBus* bus_;
+  hal::Clock* clock_;
+  LegFeatureSource* source_;
+  robots::HexapodModel model_;
+  LegServo* law_;
+  ServoLoopOptions options_;
+  std::vector<hal::MotorDrive*> drives_;
+};
+
+// CSV of the samples (control/README.md). Throws std::runtime_error naming the file when it
+// cannot be written.
+void WriteServoLogCsv(const std::string& path, const std::vector<ServoLoopSample>& samples);
+// Convergence plot: ‖e‖ vs time, log scale, with the threshold as a second series. Throws
+// std::runtime_error naming the file when it cannot be written.
+void WriteConvergencePlot(const std::string& path, const std::vector<ServoLoopSample>& samples,
+                          double threshold, const std::string& title);
+
+}  // namespace kinevis::control

@@ -418,5 +418,90 @@ TEST(HexapodSceneTest, ShadedLegsHaveContrastAtBothLimbs) {
   EXPECT_GT(transitions, 300);
 }
 
+// Legs end flush with the plates (issue 5 leftover: the perpendicular cut at B_j used to poke
+// through the platform plate, crescents seen from above, and left a wedge gap at the base). Points
+// on each leg's cylinder 1 mm on the leg's side of a plate plane belong to the leg — also where
+// they lie beyond A_j or B_j along the axis — and points 1 mm beyond the plane do not, also where
+// the old cut kept them. Each point is probed by a ray from 5 mm outside the cylinder along the
+// surface normal, so that nothing else is in the way.
+TEST(HexapodSceneTest, LegsEndFlushWithThePlates) {
+  const robots::HexapodModel model = robots::HexapodModel::Default();
+  const Eigen::Isometry3d X_CB = PerspectiveX_CB();
+  const Eigen::Isometry3d X_CP = X_CB * TestPose();
+  const HexapodScene scene(model, TestPose(), X_CB);
+  const double radius = scene.leg_radius(), standoff = 0.005;
+  int inside = 0, outside = 0, beyond_old_cut = 0, kept_by_old_cut = 0;
+  for (int j = 0; j < 6; ++j) {
+    const Eigen::Vector3d a = scene.p_C_A(j), b = scene.p_C_B(j);
+    const double length = (b - a).norm();
+    const Eigen::Vector3d w = (b - a) / length;
+    const Eigen::Vector3d e1 = w.unitOrthogonal(), e2 = w.cross(e1);
+    for (int k = 0; k < 2; ++k) {
+      const Eigen::Isometry3d& X_CF = k == 0 ? X_CB : X_CP;  // the plate's frame
+      const Eigen::Vector3d z = X_CF.linear().col(2), c = X_CF.translation();
+      const double side = k == 0 ? 1.0 : -1.0;  // legs above the base, below the platform
+      for (int g = 0; g < 36; ++g) {
+        const double phi = 2.0 * M_PI * g / 36;
+        const Eigen::Vector3d n = std::cos(phi) * e1 + std::sin(phi) * e2;  // outward normal
+        const double zn = side * z.dot(n);
+        for (const double height : {1e-3, -1e-3}) {
+          // The generator's point at `height` on the leg's side of the plate plane, and a probe
+          // from outside that stays on the same side of the plane.
+          if (height > 0.0 ? zn < 0.05 : zn > -0.05) continue;
+          const double s =
+              (height - side * z.dot(a - c) - side * radius * z.dot(n)) / (side * z.dot(w));
+          const Eigen::Vector3d p = a + s * w + radius * n;
+          ASSERT_NEAR(side * z.dot(p - c), height, 1e-12);
+          Ray ray;
+          ray.p_C_O = p + standoff * n;
+          ray.d_C = -n;
+          const Hit hit = scene.Trace(ray);
+          const bool on_leg = hit.object == j + 1 && std::abs(hit.depth - standoff) < 1e-9;
+          const bool old_cut_keeps = s >= 0.0 && s <= length;
+          if (height > 0.0) {
+            EXPECT_TRUE(on_leg) << "leg " << j << " end " << k << " generator " << g;
+            ++inside;
+            beyond_old_cut += old_cut_keeps ? 0 : 1;
+          } else {
+            EXPECT_FALSE(on_leg) << "leg " << j << " end " << k << " generator " << g;
+            ++outside;
+            kept_by_old_cut += old_cut_keeps ? 1 : 0;
+          }
+        }
+      }
+    }
+  }
+  std::printf("flush ends: %d points inside (%d beyond the old cut), %d outside (%d kept by it)\n",
+              inside, beyond_old_cut, outside, kept_by_old_cut);
+  EXPECT_GT(beyond_old_cut, 50);  // the test does probe the old wedges and crescents
+  EXPECT_GT(kept_by_old_cut, 50);
+}
+
+// With a plate off, the leg keeps the perpendicular cut at that end.
+TEST(HexapodSceneTest, LegsEndPerpendicularlyWhereThePlateIsOff) {
+  const robots::HexapodModel model = robots::HexapodModel::Default();
+  HexapodSceneOptions o;
+  o.platform_plate = false;
+  const HexapodScene scene(model, TestPose(), PerspectiveX_CB(), o);
+  const double radius = scene.leg_radius(), standoff = 0.005;
+  for (int j = 0; j < 6; ++j) {
+    const Eigen::Vector3d a = scene.p_C_A(j), b = scene.p_C_B(j);
+    const Eigen::Vector3d w = (b - a).normalized();
+    const Eigen::Vector3d e1 = w.unitOrthogonal(), e2 = w.cross(e1);
+    for (int g = 0; g < 12; ++g) {
+      const double phi = 2.0 * M_PI * g / 12;
+      const Eigen::Vector3d n = std::cos(phi) * e1 + std::sin(phi) * e2;
+      for (const double offset : {-1e-3, 1e-3}) {
+        Ray ray;
+        ray.p_C_O = b + offset * w + (radius + standoff) * n;
+        ray.d_C = -n;
+        const Hit hit = scene.Trace(ray);
+        const bool on_leg = hit.object == j + 1 && std::abs(hit.depth - standoff) < 1e-9;
+        EXPECT_EQ(on_leg, offset < 0.0) << "leg " << j << " generator " << g;
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace kinevis::vision::render

@@ -142,6 +142,39 @@ HexapodScene::HexapodScene(const robots::HexapodModel& model, const Eigen::Isome
     leg.c0 = leg.o_perp.squaredNorm() - radius_ * radius_;
   }
   const Eigen::Isometry3d X_CP = X_CB * X_BP;
+  // Where each leg ends (header): the plate planes when the plates are on. A plate nearly parallel
+  // to a leg's axis (|n · w| < 1e-6: no sensible flush end) keeps the perpendicular cut.
+  for (Leg& leg : legs_) {
+    const Eigen::Vector3d middle = 0.5 * (leg.a + leg.b);
+    leg.cut_normal[0] = -leg.w;
+    leg.cut_offset[0] = -leg.w.dot(leg.a);
+    leg.cut_normal[1] = leg.w;
+    leg.cut_offset[1] = leg.w.dot(leg.b);
+    leg.along_lo = 0.0;
+    leg.along_hi = leg.length;
+    const bool on[2] = {options_.base_plate, options_.platform_plate};
+    const Eigen::Isometry3d* X_CF[2] = {&X_CB, &X_CP};
+    for (int k = 0; k < 2; ++k) {
+      const Eigen::Vector3d normal = X_CF[k]->linear().col(2);
+      const Eigen::Vector3d centre = X_CF[k]->translation();
+      const double n_dot_w = normal.dot(leg.w);
+      if (!on[k] || std::abs(n_dot_w) < 1e-6) continue;
+      // Keep the side of the plane the leg's middle is on.
+      const double side = normal.dot(middle - centre) >= 0.0 ? 1.0 : -1.0;
+      leg.cut_normal[k] = -side * normal;
+      leg.cut_offset[k] = -side * normal.dot(centre);
+      // The axis meets the plane at along = s; the elliptic end spans s ± R tan φ along the axis,
+      // tan φ = sqrt(1 − (n · w)²) / |n · w|.
+      const double s_axis = normal.dot(centre - leg.a) / n_dot_w;
+      const double spread =
+          radius_ * std::sqrt(std::max(0.0, 1.0 - n_dot_w * n_dot_w)) / std::abs(n_dot_w);
+      if (k == 0) {
+        leg.along_lo = s_axis - spread;
+      } else {
+        leg.along_hi = s_axis + spread;
+      }
+    }
+  }
   base_.centre = X_CB.translation();
   base_.normal = X_CB.linear().col(2);
   base_.radius = base_extent + options_.plate_margin;
@@ -165,8 +198,8 @@ HexapodScene::HexapodScene(const robots::HexapodModel& model, const Eigen::Isome
     *cos = std::sqrt(1.0 - (rho / distance) * (rho / distance));
   };
   for (Leg& leg : legs_) {
-    cone(0.5 * (leg.a + leg.b), std::hypot(0.5 * leg.length, radius_), &leg.cone_axis,
-         &leg.cone_cos);
+    cone(leg.a + 0.5 * (leg.along_lo + leg.along_hi) * leg.w,
+         std::hypot(0.5 * (leg.along_hi - leg.along_lo), radius_), &leg.cone_axis, &leg.cone_cos);
   }
   cone(base_.centre, base_.radius, &base_.cone_axis, &base_.cone_cos);
   cone(platform_.centre, platform_.radius, &platform_.cone_axis, &platform_.cone_cos);
@@ -187,6 +220,11 @@ HexapodScene::HexapodScene(const robots::HexapodModel& model, const Eigen::Isome
 
 bool HexapodScene::PredictLegLimbs(int leg, Eigen::Vector3d* n1_C, Eigen::Vector3d* n2_C) const {
   return PredictCylinderLimbs(legs_[leg].a, legs_[leg].b, radius_, n1_C, n2_C);
+}
+
+bool HexapodScene::InsideCuts(const Leg& leg, const Eigen::Vector3d& p_C) {
+  return leg.cut_normal[0].dot(p_C) <= leg.cut_offset[0] &&
+         leg.cut_normal[1].dot(p_C) <= leg.cut_offset[1];
 }
 
 int HexapodScene::TracePlate(const Plate& plate, int id, const Ray& ray_C, double* t_best) const {
@@ -260,18 +298,35 @@ Hit HexapodScene::Trace(const Ray& ray_C) const {
         const double t = (root == 0 ? -b - s : -b + s) / a_coef;
         if (!(t > 1e-9) || !(t < t_best)) continue;
         const double along = leg.along0 + t * dw;
-        if (along < 0.0 || along > leg.length) continue;
+        if (along < leg.along_lo || along > leg.along_hi) continue;
+        if (!InsideCuts(leg, t * d)) continue;
         t_best = t;
         best = j + 1;
         break;
       }
     } else {
-      const double dm = d.dot(leg.w.cross(o - leg.a));
+      const Eigen::Vector3d oa = o - leg.a;
+      const double dm = d.dot(leg.w.cross(oa));
       if (dm * dm > r2 * a_coef) continue;
-      const double t = IntersectCylinder(ray_C, leg.a, leg.b, radius_);
-      if (t < t_best) {
+      // The infinite cylinder |o⊥ + t d⊥|² = R² (as IntersectCylinder), then the leg's ends.
+      const double along0 = oa.dot(leg.w);
+      const Eigen::Vector3d o_perp = oa - along0 * leg.w;
+      const Eigen::Vector3d d_perp = d - dw * leg.w;
+      const double a2 = d_perp.squaredNorm();
+      if (a2 < 1e-18) continue;
+      const double b = o_perp.dot(d_perp);
+      const double disc = b * b - a2 * (o_perp.squaredNorm() - r2);
+      if (disc < 0.0) continue;
+      const double s = std::sqrt(disc);
+      for (int root = 0; root < 2; ++root) {
+        const double t = (root == 0 ? -b - s : -b + s) / a2;
+        if (!(t > 1e-9) || !(t < t_best)) continue;
+        const double along = along0 + t * dw;
+        if (along < leg.along_lo || along > leg.along_hi) continue;
+        if (!InsideCuts(leg, o + t * d)) continue;
         t_best = t;
         best = j + 1;
+        break;
       }
     }
   }

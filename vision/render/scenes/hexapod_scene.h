@@ -11,6 +11,11 @@
 // Object ids (Hit::object and the ground truth): 0 background, 1..6 leg j = 0..5 (id = j + 1),
 // kBasePlateId, kPlatformPlateId.
 //
+// A leg is the part of its cylinder between the base plate's plane and the platform plate's plane
+// when the plates are on (it ends flush with each plate, the ends being ellipses, as where a real
+// leg meets its joint housing), and ends at A_j or B_j with a cut perpendicular to its axis at a
+// plate that is off. Its limbs (below) do not depend on where it ends.
+//
 // Radiance (documented choice): the legs are BRIGHTER than the background. A leg point with
 // outward normal n has radiance leg_ambient + leg_diffuse · max(0, n · l) (Lambertian with an
 // ambient term, l = unit direction towards the light), so a limb — where n is perpendicular to the
@@ -100,6 +105,14 @@ class HexapodScene final : public Scene {
     // when the origin is inside the sphere.
     Eigen::Vector3d cone_axis = Eigen::Vector3d::UnitZ();
     double cone_cos = -1.0;
+    // The leg is the part of its cylinder inside two half-spaces cut_normal[k] · p ≤ cut_offset[k]
+    // (p in C): k = 0 the base end, k = 1 the platform end. With the plate on, the half-space is
+    // the plate plane's side the leg is on (the leg ends flush with the plate); with it off, the
+    // plane through A_j (B_j) perpendicular to the axis. The clipped leg lies within
+    // along_lo ≤ (p − a) · w ≤ along_hi (a cheap test before the half-spaces).
+    Eigen::Vector3d cut_normal[2];
+    double cut_offset[2] = {0.0, 0.0};
+    double along_lo = 0.0, along_hi = 0.0;
   };
   struct Plate {
     Eigen::Vector3d centre = Eigen::Vector3d::Zero();  // in C
@@ -109,6 +122,8 @@ class HexapodScene final : public Scene {
     Eigen::Vector3d cone_axis = Eigen::Vector3d::UnitZ();  // bounding cone, as for Leg
     double cone_cos = -1.0;
   };
+  // Whether a point on leg's cylinder lies within the leg's ends.
+  static bool InsideCuts(const Leg& leg, const Eigen::Vector3d& p_C);
   // Nearest plate hit with t < *t_best (updates it); returns the plate's id or 0.
   int TracePlate(const Plate& plate, int id, const Ray& ray_C, double* t_best) const;
   HexapodSceneOptions options_;
