@@ -375,6 +375,10 @@ HexapodServoRun ServoHexapod(HexapodRig* rig, const HexapodServoOptions& o) {
   rig->Enable();
   control::ImageLegFeatureOptions feature_options;
   feature_options.p_C_A = p_C_A;
+  // A real camera (or a world in another process) delivers frames when it does: grab and extract
+  // in a worker thread so that the drive cycle never waits for the camera. The simulated world in
+  // this process runs on its stepped clock from this thread only.
+  feature_options.asynchronous = !rig->simulated();
   control::ImageLegFeatureSource source(
       &rig->camera(), &rig->camera_model(), nominal, X_CB,
       [rig, &nominal] { return robots::LegLengthsFromJointPositions(nominal, rig->Readings()); },
@@ -422,11 +426,14 @@ void PrintHexapodServo(const HexapodServoRun& run, const HexapodServoOptions& o)
   const control::ServoLoopReport& r = run.report;
   std::printf("servo hexapod: %s after %.2f s: |e| = %.3g (threshold %.3g)",
               control::ToString(r.outcome), r.duration_s, r.final_error_norm, o.threshold);
-  if (r.time_to_threshold_s >= 0) std::printf(", below threshold at %.2f s", r.time_to_threshold_s);
+  if (r.time_to_threshold_s >= 0) {
+    std::printf(", convergence test first met at %.2f s", r.time_to_threshold_s);
+  }
   std::printf(
-      "\n  %llu cycles, %llu camera frames, holds: %llu leg lost, %llu stale camera, %llu "
-      "law; velocity-limited cycles %llu\n",
-      static_cast<unsigned long long>(r.cycles), static_cast<unsigned long long>(r.frames),
+      "\n  %llu cycles (%llu with late drive answers), %llu camera frames, holds: %llu leg "
+      "lost, %llu stale camera, %llu law; velocity-limited cycles %llu\n",
+      static_cast<unsigned long long>(r.cycles), static_cast<unsigned long long>(r.cycle_timeouts),
+      static_cast<unsigned long long>(r.frames),
       static_cast<unsigned long long>(r.hold_cycles_leg_lost),
       static_cast<unsigned long long>(r.hold_cycles_stale_camera),
       static_cast<unsigned long long>(r.hold_cycles_law),

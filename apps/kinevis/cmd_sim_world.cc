@@ -71,7 +71,11 @@ std::function<bool()> PrintOnce(std::vector<std::string> lines) {
 
 int RunHexapod(const WorldOptions& o) {
   sim::HexapodWorldConfig config;
-  if (!o.config.empty()) config = sim::LoadHexapodWorldConfig(o.config);
+  if (!o.config.empty()) {
+    config = sim::LoadHexapodWorldConfig(o.config);
+  } else {
+    config.cameras = sim::DefaultHexapodCameras();  // those of config/hexapod-sim.yaml
+  }
   sim::HexapodWorld world(config, sim::HexapodWorld::Timing::kRealTime);
   const std::string backend = world.ExposeSlcan(o.link);
   const std::vector<std::string> names = world.RegisterCameras(
@@ -126,8 +130,8 @@ void AddSimWorldCommands(CLI::App& sim, CommandList* commands) {
   CLI::App* h = world->add_subcommand(
       "hexapod", "Gough-Stewart platform: six CiA 402 drives behind a simulated slcan adapter");
   h->add_option("--config", hex->config,
-                "World config (config/hexapod-sim.yaml); default: "
-                "built-in defaults")
+                "World config (config/hexapod-sim.yaml); default: built-in defaults with "
+                "that file's two cameras")
       ->check(CLI::ExistingFile);
   h->add_option("--link", hex->link, "Also reach the adapter's pty through this symbolic link");
   h->footer(

@@ -69,7 +69,7 @@ struct HexapodServoOptions {
   // ... or the law's remaining displacement below these (m, rad): with u* from a model pose, |e|
   // stops above zero when the true robot cannot show those directions exactly.
   double remaining_translation = 2e-4;
-  double remaining_rotation = 0.02 * M_PI / 180;  // low-passed over 0.5 s
+  double remaining_rotation = 0.05 * M_PI / 180;  // low-passed over 0.5 s
   double timeout_s = 30.0;
   double max_leg_velocity = 0.02;  // m/s
   int min_visible_legs = 6;

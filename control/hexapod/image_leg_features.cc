@@ -7,6 +7,7 @@
 #include <cstring>
 #include <sstream>
 #include <stdexcept>
+#include <thread>
 
 #include "hal/common/error.h"
 
@@ -30,6 +31,10 @@ std::string ImageLegFeatureOptions::Validate() const {
   if (p_C_A && !AllFinite(*p_C_A)) {
     message += std::string(message.empty() ? "" : "; ") + "p_C_A: not finite";
   }
+  if (grab_timeout_ms <= 0) {
+    message += std::string(message.empty() ? "" : "; ") + "grab_timeout_ms: must be > 0, got " +
+               std::to_string(grab_timeout_ms);
+  }
   return message;
 }
 
@@ -42,8 +47,8 @@ ImageLegFeatureSource::ImageLegFeatureSource(
       X_CB_(X_CB),
       leg_lengths_(std::move(leg_lengths)),
       options_(std::move(options)),
-      X_BP_(robots::HexapodModel::NominalPose()),
-      workspace_(std::make_unique<vision::hexapod::LegEdgeWorkspace>()) {
+      workspace_(std::make_unique<vision::hexapod::LegEdgeWorkspace>()),
+      X_BP_(robots::HexapodModel::NominalPose()) {
   std::string message;
   const auto add = [&](const std::string& text) {
     message += (message.empty() ? "" : "; ") + text;
@@ -60,29 +65,105 @@ ImageLegFeatureSource::ImageLegFeatureSource(
   if (!X_CB_.matrix().allFinite()) add("X_CB: not finite");
   if (const std::string m = options_.Validate(); !m.empty()) add("options: " + m);
   if (!message.empty()) throw std::invalid_argument("ImageLegFeatureSource: " + message);
+  if (options_.asynchronous) worker_ = std::thread([this] { Worker(); });
 }
 
-ImageLegFeatureSource::~ImageLegFeatureSource() = default;
+ImageLegFeatureSource::~ImageLegFeatureSource() {
+  stop_ = true;
+  q_ready_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
 
-const std::array<LegObservation, kHexapodLegs>& ImageLegFeatureSource::last_observations() const {
-  return workspace_->observations;
+std::array<LegObservation, kHexapodLegs> ImageLegFeatureSource::last_observations() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return observations_;
+}
+Eigen::Isometry3d ImageLegFeatureSource::last_predicted_pose() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return X_BP_;
+}
+std::string ImageLegFeatureSource::last_error() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return last_error_;
+}
+ImageLegFeatureCounters ImageLegFeatureSource::counters() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return counters_;
+}
+
+void ImageLegFeatureSource::RecordError(const std::string& text,
+                                        uint64_t ImageLegFeatureCounters::*counter) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++(counters_.*counter);
+    last_error_ = text;
+  }
+  spdlog::warn("leg features: {}", text);
+}
+
+void ImageLegFeatureSource::Worker() {
+  LegFeatureFrame frame;
+  for (;;) {
+    Vector6d q;
+    {
+      // The first frame waits for the first q (the predictions need it).
+      std::unique_lock<std::mutex> lock(mutex_);
+      q_ready_.wait(lock, [this] { return have_q_ || stop_; });
+      if (stop_) return;
+      q = q_latest_;
+    }
+    if (!GrabAndProcess(std::chrono::milliseconds(options_.grab_timeout_ms), q, &frame)) {
+      // A camera in fault answers at once: do not spin on it.
+      if (camera_->lifecycle() != hal::DeviceLifecycle::kActive) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      }
+      if (stop_) return;
+      continue;
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    published_ = frame;
+  }
 }
 
 bool ImageLegFeatureSource::Poll(hal::Duration now, LegFeatureFrame* frame) {
+  const Vector6d q = leg_lengths_();
+  if (options_.asynchronous) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    q_latest_ = q;
+    if (!have_q_) {
+      have_q_ = true;
+      q_ready_.notify_all();
+    }
+    if (published_.sequence <= handed_over_) return false;
+    *frame = published_;
+    handed_over_ = published_.sequence;
+    return true;
+  }
   if (period_ == hal::Duration(0)) {
     const double fps = camera_->format().fps;
     period_ = std::chrono::duration_cast<hal::Duration>(
         std::chrono::duration<double>(fps > 0 ? 1.0 / fps : 0.01));
   }
   // Not due yet: the next capture is a period after the last one (a little early is fine: the
-  // grab below then simply finds nothing).
+  // grab then simply finds nothing).
   if (have_frame_ && now < last_capture_ + period_ - period_ / 20) return false;
-  const std::error_code ec = camera_->Grab(&image_, std::chrono::milliseconds(0));
-  if (ec == hal::Errc::kTimeout) return false;
+  return GrabAndProcess(std::chrono::milliseconds(0), q, frame);
+}
+
+bool ImageLegFeatureSource::GrabAndProcess(std::chrono::milliseconds timeout, const Vector6d& q,
+                                           LegFeatureFrame* frame) {
+  const std::error_code ec = camera_->Grab(&image_, timeout);
+  if (ec == hal::Errc::kTimeout) {
+    if (options_.asynchronous) {
+      RecordError(
+          "camera " + camera_->name() + ": no frame for " + std::to_string(timeout.count()) + " ms",
+          &ImageLegFeatureCounters::camera_errors);
+    }
+    return false;
+  }
   if (ec) {
-    ++counters_.camera_errors;
-    last_error_ = "camera " + camera_->name() + ": " + ec.message();
-    spdlog::warn("leg features: {}", last_error_);
+    RecordError("camera " + camera_->name() + ": " + ec.message(),
+                &ImageLegFeatureCounters::camera_errors);
     return false;
   }
   have_frame_ = true;
@@ -90,12 +171,11 @@ bool ImageLegFeatureSource::Poll(hal::Duration now, LegFeatureFrame* frame) {
 
   // The grey view of the frame.
   if (image_.width != camera_model_->width() || image_.height != camera_model_->height()) {
-    ++counters_.format_errors;
-    last_error_ = "camera " + camera_->name() + ": frame " + std::to_string(image_.width) + "x" +
-                  std::to_string(image_.height) + " but the camera model is " +
-                  std::to_string(camera_model_->width()) + "x" +
-                  std::to_string(camera_model_->height());
-    spdlog::warn("leg features: {}", last_error_);
+    RecordError("camera " + camera_->name() + ": frame " + std::to_string(image_.width) + "x" +
+                    std::to_string(image_.height) + " but the camera model is " +
+                    std::to_string(camera_model_->width()) + "x" +
+                    std::to_string(camera_model_->height()),
+                &ImageLegFeatureCounters::format_errors);
     return false;
   }
   vision::render::ImageView8 view;
@@ -136,34 +216,39 @@ bool ImageLegFeatureSource::Poll(hal::Duration now, LegFeatureFrame* frame) {
   }
 
   // Predictions: nominal FK of the measured leg lengths, warm-started from the last pose.
-  const Vector6d q = leg_lengths_();
-  const robots::ForwardKinematicsSummary fk =
-      robots::ForwardKinematics(model_, q, X_BP_, robots::ForwardKinematicsOptions{}, &fk_data_);
-  if (fk.converged()) {
-    X_BP_ = fk.X_BP;
-  } else {
-    ++counters_.fk_failures;
+  Eigen::Isometry3d X_BP;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    X_BP = X_BP_;
   }
+  const robots::ForwardKinematicsSummary fk =
+      robots::ForwardKinematics(model_, q, X_BP, robots::ForwardKinematicsOptions{}, &fk_data_);
+  if (fk.converged()) X_BP = fk.X_BP;
   std::array<LegPrediction, kHexapodLegs> predictions =
-      vision::hexapod::PredictLegs(model_, X_BP_, X_CB_);
+      vision::hexapod::PredictLegs(model_, X_BP, X_CB_);
   if (options_.p_C_A) {
     for (int j = 0; j < kHexapodLegs; ++j) predictions[j].p_C_A = (*options_.p_C_A)[j];
   }
 
   const auto& observations = vision::hexapod::ObserveLegs(view, *camera_model_, predictions,
                                                           options_.edges, workspace_.get());
-  ++counters_.frames;
+  int not_visible = 0;
   for (int j = 0; j < kHexapodLegs; ++j) {
     frame->visible[j] = observations[j].visible;
     if (observations[j].visible) {
       frame->u_C[j] = observations[j].u_C;
     } else {
-      ++counters_.legs_not_visible;
+      ++not_visible;
     }
   }
   frame->timestamp = image_.timestamp;
   frame->sequence = ++sequence_;
-  (void)now;
+  std::lock_guard<std::mutex> lock(mutex_);
+  X_BP_ = X_BP;
+  observations_ = observations;
+  ++counters_.frames;
+  if (!fk.converged()) ++counters_.fk_failures;
+  counters_.legs_not_visible += not_visible;
   return true;
 }
 

@@ -11,22 +11,34 @@
 // the base ends. So the prediction is off only by the nominal model's error and X_CB's (a few mm
 // after calibration, a few cm with a hand estimate: within LegEdgeOptions::search_half_width_px).
 //
-// Timing. Poll() is called by the loop every drive cycle and never waits: it asks the camera for
-// a frame only when one is due by the camera's frame rate (a grab with a zero timeout), and then
-// extracts the edges in the caller's thread (about 1–2 ms for six legs at 1024×768, see
-// bench/leg_edges_bench.cc). A camera error is counted and reported (last_error()); the loop
-// sees no frame and holds on its stale-camera rule, the safe reaction. The frame's timestamp is
-// the capture time the camera reports.
+// Timing, two modes (options.asynchronous):
+//  - synchronous (simulated worlds in stepped time, tests): Poll() is called by the loop every
+//    drive cycle and never waits: it asks the camera for a frame only when one is due by the
+//    camera's frame rate (a grab with a zero timeout) and extracts the edges in the caller's
+//    thread (about 1–2 ms for six legs at 1024×768, bench/leg_edges_bench.cc). Deterministic.
+//  - asynchronous (real cameras, and worlds in another process): a worker thread grabs frames
+//    (blocking up to grab_timeout) and extracts the edges; Poll() only hands over the newest
+//    finished frame and the current leg lengths, so a camera that is slow to deliver never
+//    delays a drive cycle. The leg-length provider is still called from Poll() (the loop's
+//    thread); the worker uses the latest q it was given.
+// A camera error is counted and reported (last_error()); the loop sees no frame and holds on its
+// stale-camera rule, the safe reaction. The frame's timestamp is the capture time the camera
+// reports.
 //
 // Frames and conventions as in control/hexapod/leg_servo.h and vision/hexapod/leg_edges.h.
 
 #include <Eigen/Geometry>
 #include <array>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "control/hexapod/servo_loop.h"
@@ -42,6 +54,13 @@ struct ImageLegFeatureOptions {
   // Calibrated base attachment points in C (seed eq. 14's solution); when set they are the base
   // ends of the predictions instead of X_CB·p_B_A of the nominal model.
   std::optional<LegPoints> p_C_A;
+  // A worker thread grabs and processes the frames (see above); for a camera on a SteadyClock.
+  // Must be false for a simulated camera on a stepped world's clock (it would step the world from
+  // a second thread).
+  bool asynchronous = false;
+  // Asynchronous mode: the longest wait for one frame (ms, > 0); a longer gap is counted as a
+  // camera error ("no frame") and the wait starts again.
+  int grab_timeout_ms = 500;
   // Empty when usable, otherwise every bad field and its value.
   std::string Validate() const;
 };
@@ -72,15 +91,22 @@ class ImageLegFeatureSource final : public LegFeatureSource {
 
   bool Poll(hal::Duration now, LegFeatureFrame* frame) override;
 
-  // The observations of the last processed frame (reasons for the legs not seen).
-  const std::array<vision::hexapod::LegObservation, kHexapodLegs>& last_observations() const;
-  // The platform pose the last predictions were made at (nominal FK of the measured q).
-  const Eigen::Isometry3d& last_predicted_pose() const { return X_BP_; }
-  // The last camera or format error ("" when none so far), naming the camera and the cause.
-  const std::string& last_error() const { return last_error_; }
-  const ImageLegFeatureCounters& counters() const { return counters_; }
+  // Copies (thread-safe in both modes): the observations of the last processed frame (the reasons
+  // for the legs not seen), the platform pose its predictions were made at (nominal FK of the
+  // measured q), the last camera or format error ("" when none so far; it names the camera and
+  // the cause), and the counters.
+  std::array<vision::hexapod::LegObservation, kHexapodLegs> last_observations() const;
+  Eigen::Isometry3d last_predicted_pose() const;
+  std::string last_error() const;
+  ImageLegFeatureCounters counters() const;
 
  private:
+  // Grabs one frame (waiting at most `timeout`) and, when there is one, extracts the legs with the
+  // leg lengths q into *frame. Returns true when *frame holds a new frame.
+  bool GrabAndProcess(std::chrono::milliseconds timeout, const Vector6d& q, LegFeatureFrame* frame);
+  void Worker();
+  void RecordError(const std::string& text, uint64_t ImageLegFeatureCounters::*counter);
+
   hal::Camera* camera_;
   const vision::CameraModel* camera_model_;
   robots::HexapodModel model_;
@@ -90,14 +116,26 @@ class ImageLegFeatureSource final : public LegFeatureSource {
   hal::Duration period_{0};
   bool have_frame_ = false;
   hal::Duration last_capture_{0};
-  Eigen::Isometry3d X_BP_;
+  // Used by the thread that processes frames only.
   robots::HexapodData fk_data_;
   hal::Image image_;
   std::vector<uint8_t> grey_;  // converted pixels when the camera does not deliver mono8
   std::unique_ptr<vision::hexapod::LegEdgeWorkspace> workspace_;
+  uint64_t sequence_ = 0;
+
+  mutable std::mutex mutex_;  // guards what follows
+  Eigen::Isometry3d X_BP_;
+  std::array<vision::hexapod::LegObservation, kHexapodLegs> observations_{};
   std::string last_error_;
   ImageLegFeatureCounters counters_;
-  uint64_t sequence_ = 0;
+  // Asynchronous mode: the newest q from Poll(), the newest finished frame.
+  Vector6d q_latest_ = Vector6d::Zero();
+  bool have_q_ = false;
+  LegFeatureFrame published_;
+  uint64_t handed_over_ = 0;  // sequence of the last frame Poll() returned
+  std::condition_variable q_ready_;
+  std::atomic<bool> stop_{false};
+  std::thread worker_;
 };
 
 }  // namespace kinevis::control

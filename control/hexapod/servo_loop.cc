@@ -10,6 +10,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
 #include "vision/plot/line_plot.h"
 
@@ -109,6 +110,9 @@ std::string ServoLoopOptions::Validate() const {
   p.NonNegative("convergence_filter_s", convergence_filter_s);
   p.NonNegative("convergence_dwell_s", convergence_dwell_s);
   p.Positive("timeout_s", timeout_s);
+  if (max_consecutive_cycle_timeouts < 0) {
+    p.Add("max_consecutive_cycle_timeouts", max_consecutive_cycle_timeouts, "must be >= 0");
+  }
   return p.text();
 }
 
@@ -270,6 +274,7 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
   bool have_frame = false;
   double converged_since = -1;
   bool converged_by_error = true;
+  int consecutive_timeouts = 0;
   Vector6d filtered_displacement = Vector6d::Zero();
   bool have_displacement = false;
   hal::Duration last_displacement_time = start;
@@ -287,9 +292,18 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
     const double t = ToSeconds(now - start);
     ++report.cycles;
 
-    // 1. The bus: a fault of any drive stops all six.
+    // 1. The bus: a fault of any drive stops all six. A cycle whose answers did not all come in
+    // time (the drives keep last cycle's values; their heartbeats are supervised separately) is
+    // tolerated max_consecutive_cycle_timeouts times in a row, then it is a fault too.
     const std::error_code cycle_error = bus_->Cycle();
-    bool faulted = static_cast<bool>(cycle_error);
+    bool faulted = false;
+    if (cycle_error == hal::Errc::kTimeout) {
+      ++report.cycle_timeouts;
+      faulted = ++consecutive_timeouts > options_.max_consecutive_cycle_timeouts;
+    } else {
+      consecutive_timeouts = 0;
+      faulted = static_cast<bool>(cycle_error);
+    }
     for (hal::MotorDrive* d : drives_) {
       faulted = faulted || d->lifecycle() == hal::DeviceLifecycle::kFault;
     }
@@ -297,7 +311,12 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
       report.outcome = ServoLoopOutcome::kDriveFault;
       report.message = std::string("drive fault at t = ") + std::to_string(t) + " s (bus " +
                        bus_->name() + ": " +
-                       (cycle_error ? cycle_error.message() : std::string("no error")) + "): ";
+                       (cycle_error ? cycle_error.message() : std::string("no error")) +
+                       (consecutive_timeouts > options_.max_consecutive_cycle_timeouts
+                            ? ", " + std::to_string(consecutive_timeouts) +
+                                  " cycles in a row without every drive's answer"
+                            : std::string()) +
+                       "): ";
       StopAllOnFault(&report);
       spdlog::error("servo loop: {}", report.message);
       break;

@@ -9,6 +9,8 @@
 // Safety, checked every cycle (never by exceptions):
 //  - drive fault or heartbeat loss (DriveBus::Cycle() error, or a drive in fault): every drive
 //    is quick-stopped (or disabled), the run ends with kDriveFault naming the drive and cause;
+//    a cycle in which not every drive answered in time (Errc::kTimeout, the drives are not in
+//    fault) is tolerated up to max_consecutive_cycle_timeouts times in a row;
 //  - stroke: a leg whose predicted stopping point (current length + commanded rate over two
 //    cycles + braking distance at stop_deceleration) would leave
 //    [leg_length_min + stroke_margin, leg_length_max − stroke_margin] stops everything: zero
@@ -119,6 +121,11 @@ struct ServoLoopOptions {
   double convergence_filter_s = 0.5;
   double convergence_dwell_s = 0.2;  // >= 0
   double timeout_s = 10.0;           // > 0
+  // Cycles in a row whose answers were late (DriveBus::Cycle() == Errc::kTimeout, no drive in
+  // fault) before the run ends as a drive fault, >= 0. A single late TPDO on a busy bus or a USB
+  // adapter is not worth stopping the machine; a drive that stays silent is (and its heartbeat
+  // supervision faults it anyway).
+  int max_consecutive_cycle_timeouts = 3;
   StopAction stop_action = StopAction::kQuickStop;
   std::string Validate() const;  // empty when usable, else every bad field and its value
 };
@@ -164,7 +171,8 @@ struct ServoLoopReport {
   uint64_t cycles = 0, frames = 0, law_steps = 0;
   uint64_t hold_cycles_leg_lost = 0, hold_cycles_stale_camera = 0, hold_cycles_law = 0;
   uint64_t velocity_scaled_cycles = 0;
-  LegMask legs_lost{};  // legs that were hidden at least once
+  uint64_t cycle_timeouts = 0;  // cycles in which not every drive answered in time
+  LegMask legs_lost{};          // legs that were hidden at least once
   Vector6d final_q = Vector6d::Zero();
   std::vector<ServoLoopSample> samples;  // every cycle
 };

@@ -3,6 +3,7 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cstdio>
 #include <fstream>
@@ -178,9 +179,12 @@ TEST(CliTest, ReplayOfABadLogNamesFileAndLine) {
 }
 
 TEST(CliTest, DemoPassesEveryCheck) {
-  ProcessResult r = RunKinevis({"demo"});
+  // The hexapod part records 60 poses and servoes (about 25 s on a quiet machine).
+  const std::string out = ::testing::TempDir() + "/kinevis-demo-" + std::to_string(::getpid());
+  ProcessResult r = RunKinevis({"demo", "--out", out}, std::chrono::seconds(280));
   EXPECT_EQ(r.exit_code, 0) << r.out << r.err;
   EXPECT_THAT(r.out, ContainsRegex("demo: [0-9]+ checks passed, 0 failed"));
+  EXPECT_THAT(r.out, HasSubstr("servo from the leg edges: converged"));
   EXPECT_THAT(r.out, ::testing::Not(HasSubstr("FAIL")));
 }
 

@@ -7,15 +7,18 @@
 #include <cmath>
 #include <memory>
 #include <string>
+#include <thread>
 
 #include "control/hexapod/leg_servo.h"
 #include "control/hexapod/servo_loop.h"
 #include "hal/camera/camera_factory.h"
+#include "hal/camera/sim_camera.h"
 #include "hal/canopen/canopen_master.h"
 #include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
 #include "sim/hexapod_world.h"
 #include "vision/camera/camera_file.h"
+#include "vision/render/renderer.h"
 #include "vision/render/scenes/hexapod_scene.h"
 
 namespace kinevis::control {
@@ -188,6 +191,67 @@ TEST(ImageLegFeatureSourceTest, CameraErrorIsCountedAndNamedAndGivesNoFrame) {
   EXPECT_FALSE(source->Poll(w.world().clock().Now(), &frame));
   EXPECT_EQ(source->counters().camera_errors, 1u);
   EXPECT_THAT(source->last_error(), HasSubstr("sim:hexapod-omni"));
+}
+
+// Asynchronous mode on a free-running camera (SteadyClock), as with a real camera: Poll() only
+// hands over frames the worker has finished; it never waits for the camera.
+TEST(ImageLegFeatureSourceTest, AsynchronousModeHandsOverFramesWithoutWaiting) {
+  const robots::HexapodModel model = robots::HexapodModel::Default();
+  const sim::WorldCameraConfig config = sim::DefaultHexapodCameras()[1];  // the omni camera
+  const std::unique_ptr<vision::CameraModel> camera_model = vision::OpenCameraModel(config.model);
+  const Eigen::Isometry3d X_CB = config.X_WC.inverse();
+  const Eigen::Isometry3d X_BP = robots::HexapodModel::NominalPose();
+  const vision::render::HexapodScene scene(model, X_BP, X_CB);
+  vision::render::Renderer renderer(*camera_model, config.render);
+  hal::CameraFormat format;
+  format.width = camera_model->width();
+  format.height = camera_model->height();
+  format.pixel_format = hal::PixelFormat::kMono8;
+  format.fps = 20;
+  const std::string name = "async-" + TestName();
+  // A slow camera: every frame takes at least 150 ms to come.
+  hal::RegisterRenderSource(name, format, [&](uint64_t id, hal::Duration, hal::Image* image) {
+    std::this_thread::sleep_for(150ms);
+    renderer.Render(scene, id, {image->data.data(), image->width, image->height, image->stride});
+    return std::error_code();
+  });
+  {
+    std::unique_ptr<hal::Camera> camera = hal::OpenCamera("sim:" + name);
+    camera->Open();
+    ASSERT_FALSE(camera->Start());
+    robots::HexapodData ik;
+    robots::InverseKinematics(model, X_BP, &ik);
+    ImageLegFeatureOptions options;
+    options.asynchronous = true;
+    ImageLegFeatureSource source(
+        camera.get(), camera_model.get(), model, X_CB, [&] { return ik.q; }, options);
+    LegFeatureFrame frame;
+    int frames = 0;
+    double slowest_poll_ms = 0;
+    const auto end = std::chrono::steady_clock::now() + 3s;
+    while (frames < 3 && std::chrono::steady_clock::now() < end) {
+      const auto t0 = std::chrono::steady_clock::now();
+      const bool got = source.Poll(hal::SteadyClock::Instance().Now(), &frame);
+      slowest_poll_ms = std::max(
+          slowest_poll_ms,
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+      if (got) {
+        ++frames;
+        EXPECT_EQ(frame.sequence, static_cast<uint64_t>(frames));
+        for (int j = 0; j < kHexapodLegs; ++j) {
+          ASSERT_TRUE(frame.visible[j]) << j;
+          EXPECT_LT(std::acos(std::min(1.0, frame.u_C[j].dot(X_CB.linear() * ik.u_B[j]))), 0.03);
+        }
+      }
+      std::this_thread::sleep_for(4ms);  // a drive cycle
+    }
+    EXPECT_EQ(frames, 3);
+    // A frame takes >= 150 ms to come and ~10 ms to process; none of it happens in Poll() (the
+    // margin is for a loaded machine, not for the work).
+    EXPECT_LT(slowest_poll_ms, 75.0);
+    EXPECT_EQ(source.counters().camera_errors, 0u);
+  }
+  hal::UnregisterRenderSource(name);
 }
 
 // The whole chain of "servo the hexapod from leg edges": rendered frames -> leg edges -> leg

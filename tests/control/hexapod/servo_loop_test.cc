@@ -295,6 +295,47 @@ TEST(ServoLoopTest, AHeartbeatLossStopsAllSixAndTheReportNamesTheDrive) {
   EXPECT_LT((rig.world().plant().X_BP.translation() - a.translation()).norm(), 1e-6);
 }
 
+TEST(ServoLoopTest, ALateAnswerIsToleratedButADriveThatStaysLateStopsAllSix) {
+  {
+    Rig rig;
+    rig.SetTarget(Target(rig.world()));
+    ServoLoopOptions o;
+    o.timeout_s = 6.0;
+    bool dropped = false;
+    const ServoLoopReport report = rig.Run(o, [&](const ServoLoopSample& s) {
+      if (!dropped && s.time_s >= 0.3) {
+        rig.world().drive(2).DropNextReplies(2);  // one cycle without leg 2's TPDO1 and TPDO2
+        dropped = true;
+      }
+    });
+    EXPECT_EQ(report.outcome, ServoLoopOutcome::kConverged) << report.message;
+    EXPECT_GE(report.cycle_timeouts, 1u);
+  }
+  {
+    Rig rig;
+    rig.SetTarget(Target(rig.world()));
+    ServoLoopOptions o;
+    o.timeout_s = 3.0;
+    o.max_consecutive_cycle_timeouts = 3;
+    bool delayed = false;
+    const ServoLoopReport report = rig.Run(o, [&](const ServoLoopSample& s) {
+      if (!delayed && s.time_s >= 0.3) {
+        rig.world().drive(4).DropNextReplies(1000);  // silent on PDOs, heartbeat still on
+        delayed = true;
+      }
+    });
+    ASSERT_EQ(report.outcome, ServoLoopOutcome::kDriveFault) << report.message;
+    EXPECT_THAT(report.message, HasSubstr("4 cycles in a row without every drive's answer"));
+    // Silent from 0.3 s: the fourth late cycle in a row is 4 cycles of 4 ms later.
+    double fault_time = 0;
+    ASSERT_EQ(std::sscanf(report.message.c_str(), "drive fault at t = %lf", &fault_time), 1);
+    EXPECT_LT(fault_time, 0.33);
+    for (hal::MotorDrive* d : rig.master().drives()) {
+      EXPECT_NE(d->lifecycle(), hal::DeviceLifecycle::kActive) << d->name();
+    }
+  }
+}
+
 TEST(ServoLoopTest, BadOptionsAreRefusedNamingEveryField) {
   ServoLoopOptions o;
   o.cycle_period_s = 0;
