@@ -503,5 +503,46 @@ TEST(HexapodSceneTest, LegsEndPerpendicularlyWhereThePlateIsOff) {
   }
 }
 
+// A leg nearly parallel to its plate, whose joint is a fraction of a millimetre off the plate's
+// plane (a perturbed robot: the joints are never exactly where the CAD puts them), crosses the
+// plane far from the joint; it must still end within one radius of the joint. (It once ran to the
+// edge of the image: a calibration pose of the pose planner, the platform tilted 32°.)
+TEST(HexapodSceneTest, LegsNeverReachMoreThanARadiusBeyondTheirJoints) {
+  robots::HexapodModel model = robots::HexapodModel::Default();
+  for (int j = 0; j < 6; ++j) model.p_P_B[j].z() += (j % 2 ? 0.5e-3 : -0.5e-3);
+  Eigen::Isometry3d X_BP = Eigen::Isometry3d::Identity();
+  X_BP.translation() = Eigen::Vector3d(0.2356, -0.0444, 0.3028);
+  X_BP.linear() = Eigen::Quaterniond(0.96106, -0.00791, -0.27454, -0.03062).normalized().matrix();
+  const Eigen::Isometry3d X_CB =
+      CameraLookingAt(Eigen::Vector3d(0.85, -1.47, 1.0), Eigen::Vector3d(0.0, 0.0, 0.2),
+                      Eigen::Vector3d::UnitZ())
+          .inverse();
+  const HexapodScene scene(model, X_BP, X_CB);
+  const double radius = scene.leg_radius(), standoff = 0.005;
+  int probes = 0;
+  for (int j = 0; j < 6; ++j) {
+    const Eigen::Vector3d a = scene.p_C_A(j), b = scene.p_C_B(j);
+    const double length = (b - a).norm();
+    const Eigen::Vector3d w = (b - a) / length;
+    const Eigen::Vector3d e1 = w.unitOrthogonal(), e2 = w.cross(e1);
+    for (int g = 0; g < 24; ++g) {
+      const double phi = 2.0 * M_PI * g / 24;
+      const Eigen::Vector3d n = std::cos(phi) * e1 + std::sin(phi) * e2;
+      for (const double beyond : {1e-3, 1e-2, 0.1, 0.3}) {
+        for (const double along : {-radius - beyond, length + radius + beyond}) {
+          Ray ray;
+          ray.p_C_O = a + along * w + (radius + standoff) * n;
+          ray.d_C = -n;
+          const Hit hit = scene.Trace(ray);
+          EXPECT_FALSE(hit.object == j + 1 && std::abs(hit.depth - standoff) < 1e-9)
+              << "leg " << j << " generator " << g << " at " << along << " m of " << length;
+          ++probes;
+        }
+      }
+    }
+  }
+  EXPECT_EQ(probes, 6 * 24 * 8);
+}
+
 }  // namespace
 }  // namespace kinevis::vision::render

@@ -166,12 +166,18 @@ HexapodScene::HexapodScene(const robots::HexapodModel& model, const Eigen::Isome
       // The axis meets the plane at along = s; the elliptic end spans s ± R tan φ along the axis,
       // tan φ = sqrt(1 − (n · w)²) / |n · w|.
       const double s_axis = normal.dot(centre - leg.a) / n_dot_w;
-      const double spread =
-          radius_ * std::sqrt(std::max(0.0, 1.0 - n_dot_w * n_dot_w)) / std::abs(n_dot_w);
+      // A leg at a grazing angle to its plate would reach far along it (R tan φ: 0.2 m at 5.7°);
+      // a real leg ends in its joint housing, so the end is also cut perpendicularly at most one
+      // radius beyond the plane's crossing.
+      const double spread = std::min(
+          radius_, radius_ * std::sqrt(std::max(0.0, 1.0 - n_dot_w * n_dot_w)) / std::abs(n_dot_w));
+      // And never more than one radius beyond the joint centre: a leg nearly parallel to its plate,
+      // whose joint is a fraction of a millimetre off the plate's plane (a perturbed robot),
+      // would otherwise cross the plane far beyond the joint.
       if (k == 0) {
-        leg.along_lo = s_axis - spread;
+        leg.along_lo = std::max(-radius_, s_axis - spread);
       } else {
-        leg.along_hi = s_axis + spread;
+        leg.along_hi = std::min(leg.length + radius_, s_axis + spread);
       }
     }
   }

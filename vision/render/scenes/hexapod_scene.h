@@ -13,8 +13,10 @@
 //
 // A leg is the part of its cylinder between the base plate's plane and the platform plate's plane
 // when the plates are on (it ends flush with each plate, the ends being ellipses, as where a real
-// leg meets its joint housing), and ends at A_j or B_j with a cut perpendicular to its axis at a
-// plate that is off. Its limbs (below) do not depend on where it ends.
+// leg meets its joint housing; at a grazing angle it is also cut perpendicularly one radius beyond
+// where its axis crosses the plate, instead of running along it), and ends at A_j or B_j with a
+// cut perpendicular to its axis at a plate that is off. Its limbs (below) do not depend on where
+// it ends.
 //
 // Radiance (documented choice): the legs are BRIGHTER than the background. A leg point with
 // outward normal n has radiance leg_ambient + leg_diffuse · max(0, n · l) (Lambertian with an
