@@ -84,10 +84,12 @@ TEST(HexapodCliTest, RecordCalibrateAndServoTheSimulatedHexapod) {
     EXPECT_LT((file.result.p_C_A[j] - X_CB * truth.p_B_A[j]).norm(), 2e-3) << "leg " << j;
   }
 
+  const std::string file_path = __FILE__;
+  const std::string root = file_path.substr(0, file_path.rfind("/tests/hil/"));
   const std::string log = dir + "/servo.csv";
   const ProcessResult servo =
-      RunKinevis({"servo", "hexapod", "--camera", "hexapod-omni", "--calib", calib, "--pose",
-                  "0.015,-0.01,0.43,2,-2,3", "--log", log, "--plot", dir + "/servo.png"},
+      RunKinevis({"servo", "hexapod", "--camera", "hexapod-omni", "--calib", calib, "--target",
+                  root + "/config/hexapod-target.yaml", "--log", log, "--plot", dir + "/servo.png"},
                  120s);
   ASSERT_EQ(servo.exit_code, 0) << servo.out << servo.err;
   EXPECT_THAT(servo.out, HasSubstr("servo hexapod: converged"));
@@ -131,6 +133,27 @@ TEST(HexapodCliTest, BrokenDatasetIsRefusedNamingTheFileAndLine) {
   EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
   EXPECT_THAT(r.err, HasSubstr("poses.csv line 5"));
   EXPECT_THAT(r.err, HasSubstr("not a finite number"));
+  fs::remove_all(dir);
+}
+
+TEST(HexapodCliTest, BadTargetFileIsRefusedNamingTheKey) {
+  const std::string dir = TempDir("target");
+  {
+    std::ofstream f(dir + "/target.yaml");
+    f << "pose: {position: [0, 0], rpy_deg: [0, 0, 0]}\nspeed: 3\n";
+  }
+  ASSERT_EQ(RunKinevis({"record", "hexapod", "--camera", "hexapod-omni", "--poses", "3", "--out",
+                        dir + "/d"},
+                       60s)
+                .exit_code,
+            0);
+  RunKinevis({"calibrate", "hexapod", "--dataset", dir + "/d", "--out", dir + "/c.yaml"}, 60s);
+  const ProcessResult r = RunKinevis(
+      {"servo", "hexapod", "--calib", dir + "/c.yaml", "--target", dir + "/target.yaml"});
+  EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
+  EXPECT_THAT(r.err, HasSubstr("target.yaml"));
+  EXPECT_THAT(r.err, HasSubstr("pose.position"));
+  EXPECT_THAT(r.err, HasSubstr("speed"));
   fs::remove_all(dir);
 }
 
