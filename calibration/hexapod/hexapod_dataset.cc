@@ -99,10 +99,10 @@ void CreateHexapodDataset(HexapodDataset* d) {
   out << YAML::Key << "poses" << YAML::Value << "poses.csv";
   out << YAML::EndMap;
   std::ofstream yaml(dir / "dataset.yaml");
-  yaml << "# kinevis hexapod calibration dataset; format: docs/hexapod-calibration.md\n"
+  yaml << "# kinevis hexapod calibration dataset; format: docs/hexapod-rig.md\n"
        << out.c_str() << "\n";
   std::ofstream csv(dir / "poses.csv");
-  csv << "index,image,s1_m,s2_m,s3_m,s4_m,s5_m,s6_m,x_m,y_m,z_m,qw,qx,qy,qz\n";
+  csv << "index,image,s0_m,s1_m,s2_m,s3_m,s4_m,s5_m,x_m,y_m,z_m,qw,qx,qy,qz\n";
   if (!yaml || !csv) {
     throw std::runtime_error("hexapod dataset: cannot write " + (dir / "dataset.yaml").string() +
                              " or poses.csv");
@@ -148,6 +148,11 @@ HexapodDataset ReadHexapodDataset(const std::string& directory) {
   };
   if (text(root["kind"], "kind") != kKind) {
     problems.push_back(std::string("kind: expected ") + kKind);
+  }
+  if (!root["version"] || !root["version"].IsScalar() ||
+      root["version"].Scalar() != std::to_string(kVersion)) {
+    problems.push_back("version: expected " + std::to_string(kVersion) + " (this kinevis reads " +
+                       "version " + std::to_string(kVersion) + " datasets)");
   }
   d.created = root["created"] ? root["created"].as<std::string>() : "";
   d.source = root["source"] ? root["source"].as<std::string>() : "";

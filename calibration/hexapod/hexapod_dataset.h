@@ -3,7 +3,7 @@
 // A recorded hexapod calibration dataset (issue 6): the images of the legs at N platform poses
 // with the joint readings, so that calibration can be run as often as wanted from one recording
 // on the real robot. Written by `kinevis record hexapod`, read by `kinevis calibrate hexapod
-// --dataset DIR`. The format is documented in docs/hexapod-calibration.md:
+// --dataset DIR`. The format is documented in docs/hexapod-rig.md:
 //
 //   DIR/dataset.yaml   kind, robot description, camera (name, model, pose hint), what made it
 //   DIR/poses.csv      one row per pose: image file, actuator readings s_j (m), commanded pose
