@@ -397,14 +397,19 @@ HexapodCalibrationResult CalibrateHexapod(const HexapodCalibrationData& data,
     Eigen::Matrix3d normal_matrix;
     SolveWeighted(eqs, w, radius, &a, &normal_matrix);  // cond checked above: solvable
     // Robust losses: an MM-estimator. A high-breakdown start (least median of squares), the
-    // scale s = 1.4826 · median|r| (MAD about zero) of its residuals, then IRLS for the chosen
-    // loss with s fixed.
+    // scale s = 1.4826 · (1 + 5/(n − 3)) · median|r| (MAD about zero, finite-sample corrected) of
+    // its residuals, then IRLS for the chosen loss with s fixed.
     double s = options.min_scale;
     if (options.loss != RobustLoss::kLeastSquares) {
       a = LeastMedianStart(eqs, radius, options, options.seed + static_cast<uint64_t>(j), a, &r,
                            &scratch);
       Residuals(eqs, a, radius, &r);
-      s = RobustScale(r, &scratch, options.min_scale);
+      // The start minimised the median residual over its candidates, so with few equations its
+      // MAD underestimates the noise and Tukey's cut-off would reject good equations (a leg seen
+      // in ~10 configurations once locked onto a 3 cm wrong answer). Rousseeuw & Leroy's
+      // finite-sample correction of the LMedS scale, (1 + 5/(n − p)) with p = 3 unknowns.
+      const double n_minus_p = static_cast<double>(eqs.size()) - 3.0;
+      s = RobustScale(r, &scratch, options.min_scale) * (1.0 + 5.0 / std::max(1.0, n_minus_p));
       leg.iterations = IrlsStage(options.loss, eqs, radius, s, options, &a, &w, &r);
     }
     leg.robust_scale = s;

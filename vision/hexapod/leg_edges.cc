@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <limits>
+#include <memory>
 #include <stdexcept>
 
 #include "vision/render/scenes/hexapod_scene.h"
@@ -16,6 +17,8 @@ namespace {
 static_assert(kLegs == robots::kHexapodLegs, "six legs");
 
 constexpr double kMaxSearchHalfWidthPx = 256.0;
+// Longest profile: a row or column within 60° of the curve's normal, over ±half/cos.
+constexpr int kMaxProfile = 4 * static_cast<int>(kMaxSearchHalfWidthPx) + 4;
 constexpr double kTukeyC = 4.685;  // 95 % efficiency at Gaussian noise
 constexpr double kHuberK = 1.345;
 constexpr double kMadToSigma = 1.4826;
@@ -54,18 +57,219 @@ bool PredictionUsable(const LegPrediction& p) {
          (p.p_C_B - p.p_C_A).norm() > 0.0;
 }
 
-// Bilinear grey level at (x, y); the caller keeps 0 <= x <= w − 1, 0 <= y <= h − 1.
-inline double Sample(const render::ImageView8& image, double x, double y) {
-  int x0 = static_cast<int>(x);
-  int y0 = static_cast<int>(y);
-  x0 = std::min(x0, image.width - 2);
-  y0 = std::min(y0, image.height - 2);
-  const double fx = x - x0, fy = y - y0;
-  const uint8_t* row0 = image.data + static_cast<size_t>(y0) * image.stride + x0;
-  const uint8_t* row1 = row0 + image.stride;
-  const double top = row0[0] + fx * (row0[1] - row0[0]);
-  const double bottom = row1[0] + fx * (row1[1] - row1[0]);
-  return top + fy * (bottom - top);
+// Sub-pixel edge location in a profile read outward across a limb (samples at whole pixels
+// k = 0 .. count − 1, the leg on the low side), around the central-difference gradient peak
+// `best` (gm, g0, gp: the gradients at best − 1, best, best + 1). Returns the offset from best, in
+// samples.
+//
+// kParabola: the vertex of the parabola through gm, g0, gp — exact for an anti-aliased (box-
+// filtered) step, whose central differences form a tent with its apex on the step, but pulled
+// towards the leg by its shading (below).
+//
+// kStepRamp: least squares fit of the pixel-integrated (and, with edge_blur_px = σ > 0,
+// Gaussian-blurred) model of a limb
+//     I(s) = L + c·√(x0 − s)   for s < x0 (the leg),    I(s) = B   for s > x0 (beside it)
+// over best − 3 .. best + 3 (L, c, B linear; x0 searched over ±0.5 px around the parabola's
+// estimate: a coarse scan, then successive parabolic interpolation between pixel boundaries,
+// where the cost is smooth). Why the root: at a limb the cylinder's surface normal turns away
+// from the ray as √(distance from the limb in the image) — image distance δ = r (1 − cos α) for a
+// normal turned by α, r the apparent radius — so any smooth shading ramps as √δ just inside a
+// limb. The ramp adds to the gradient on the leg's side and moves the parabola's vertex into the
+// leg by ~0.1 px (the simulator's Lambertian legs, r ≈ 17 px); the fit removes it.
+double LocateParabola(double gm, double g0, double gp) {
+  const double curvature = gm - 2.0 * g0 + gp;
+  const double delta = curvature < 0.0 ? 0.5 * (gm - gp) / curvature : 0.0;
+  return std::clamp(delta, -0.5, 0.5);
+}
+
+// The model's two shape functions for a pixel whose centre lies d = x0 − k inside the edge (px),
+// unblurred: the fraction of the pixel inside the leg, and ∫ √(x0 − s) ds over that part.
+inline void SharpBasis(double d, double* inside, double* ramp) {
+  *inside = std::clamp(d + 0.5, 0.0, 1.0);
+  if (d <= -0.5) {
+    *ramp = 0.0;
+    return;
+  }
+  const double a = d + 0.5, b = std::max(0.0, d - 0.5);
+  *ramp = (2.0 / 3.0) * (a * std::sqrt(a) - b * std::sqrt(b));
+}
+
+// The same blurred by a Gaussian (blur and pixel integration commute: the sharp shape functions
+// convolved with the Gaussian). Along a row or column that crosses the edge at θ from its normal
+// the profile is the normal one stretched by 1/cos θ, and so is the blur: σ_line = σ / cos θ. So
+// the functions are tabulated for σ_line = σ·f, f = 1, 1.1, …, 2 (the search lines are within 60°
+// of the normal), every 1/32 px over |d| <= 4.5, and interpolated bilinearly in (d, f) (error
+// below 1e-4 of the step). Beyond the table the blur no longer matters: the sharp functions.
+class BlurredBasis {
+ public:
+  void Build(double sigma) {
+    sigma_ = sigma;
+    constexpr int kNodes = 97;  // trapezoid over ±6σ: the sharp functions have kinks only
+    for (int j = 0; j < kFactors; ++j) {
+      const double sigma_line = sigma * (1.0 + 0.1 * j);
+      std::array<double, kNodes> v, w;
+      double total = 0.0;
+      for (int i = 0; i < kNodes; ++i) {
+        v[i] = sigma_line * (-6.0 + 12.0 * i / (kNodes - 1));
+        const double z = v[i] / sigma_line;
+        w[i] = std::exp(-0.5 * z * z) * (i == 0 || i == kNodes - 1 ? 0.5 : 1.0);
+        total += w[i];
+      }
+      for (int t = 0; t < kSize; ++t) {
+        const double d = -kRange + static_cast<double>(t) / kPerPx;
+        double inside = 0.0, ramp = 0.0;
+        for (int i = 0; i < kNodes; ++i) {
+          double fi, fr;
+          SharpBasis(d - v[i], &fi, &fr);
+          inside += w[i] * fi;
+          ramp += w[i] * fr;
+        }
+        inside_[j][t] = inside / total;
+        ramp_[j][t] = ramp / total;
+      }
+    }
+  }
+  double sigma() const { return sigma_; }
+  // stretch = σ_line / σ, clamped to [1, 2].
+  void Evaluate(double d, double stretch, double* inside, double* ramp) const {
+    const double x = (d + kRange) * kPerPx;
+    if (!(x >= 0.0 && x < kSize - 1)) {
+      SharpBasis(d, inside, ramp);
+      return;
+    }
+    const int i = static_cast<int>(x);
+    const double fx = x - i;
+    const double y = std::clamp((stretch - 1.0) * 10.0, 0.0, kFactors - 1.0);
+    const int j = std::min(static_cast<int>(y), kFactors - 2);
+    const double fy = y - j;
+    const auto lerp2 = [&](const std::array<std::array<double, kSize>, kFactors>& table) {
+      const double lo = table[j][i] + fx * (table[j][i + 1] - table[j][i]);
+      const double hi = table[j + 1][i] + fx * (table[j + 1][i + 1] - table[j + 1][i]);
+      return lo + fy * (hi - lo);
+    };
+    *inside = lerp2(inside_);
+    *ramp = lerp2(ramp_);
+  }
+
+ private:
+  static constexpr double kRange = 4.5;
+  static constexpr int kPerPx = 32;
+  static constexpr int kSize = static_cast<int>(2 * kRange * kPerPx) + 1;
+  static constexpr int kFactors = 11;
+  double sigma_ = -1.0;
+  std::array<std::array<double, kSize>, kFactors> inside_{}, ramp_{};
+};
+
+// The tables for σ, built on first use in each thread (a few ms) and kept while σ stays the same
+// (rebuilt, without allocating, when it changes).
+const BlurredBasis& BlurredBasisFor(double sigma) {
+  thread_local std::unique_ptr<BlurredBasis> basis;
+  if (basis == nullptr) basis = std::make_unique<BlurredBasis>();
+  if (basis->sigma() != sigma) basis->Build(sigma);
+  return *basis;
+}
+
+// Sum of squared residuals of the best (L, c, B) for an edge at x0, over samples [k0, k1];
+// `blurred` is null for a sharp image.
+double StepRampCost(const float* profile, int k0, int k1, double x0, const BlurredBasis* blurred,
+                    double stretch) {
+  double m00 = 0, m01 = 0, m02 = 0, m11 = 0, m12 = 0, m22 = 0, v0 = 0, v1 = 0, v2 = 0, yy = 0;
+  for (int k = k0; k <= k1; ++k) {
+    double inside, ramp;
+    if (blurred == nullptr) {
+      SharpBasis(x0 - k, &inside, &ramp);
+    } else {
+      blurred->Evaluate(x0 - k, stretch, &inside, &ramp);
+    }
+    const double beside = 1.0 - inside;
+    const double y = profile[k];
+    m00 += inside * inside;
+    m01 += inside * ramp;
+    m02 += inside * beside;
+    m11 += ramp * ramp;
+    m12 += ramp * beside;
+    m22 += beside * beside;
+    v0 += inside * y;
+    v1 += ramp * y;
+    v2 += beside * y;
+    yy += y * y;
+  }
+  // Cholesky of the 3×3 normal matrix; cost = yy − vᵀ M⁻¹ v.
+  if (!(m00 > 0.0)) return std::numeric_limits<double>::infinity();
+  const double l00 = std::sqrt(m00), l10 = m01 / l00, l20 = m02 / l00;
+  const double d1 = m11 - l10 * l10;
+  if (!(d1 > 1e-12 * m11)) return std::numeric_limits<double>::infinity();
+  const double l11 = std::sqrt(d1), l21 = (m12 - l20 * l10) / l11;
+  const double d2 = m22 - l20 * l20 - l21 * l21;
+  if (!(d2 > 1e-12 * m22)) return std::numeric_limits<double>::infinity();
+  const double l22 = std::sqrt(d2);
+  const double z0 = v0 / l00, z1 = (v1 - l10 * z0) / l11, z2 = (v2 - l20 * z0 - l21 * z1) / l22;
+  return yy - (z0 * z0 + z1 * z1 + z2 * z2);
+}
+
+double LocateStepRamp(const float* profile, int count, int best, double parabola, double blur_px,
+                      double stretch) {
+  const int k0 = std::max(0, best - 3), k1 = std::min(count - 1, best + 3);
+  if (k1 - k0 < 5) return parabola;
+  const BlurredBasis* blurred = blur_px > 0.0 ? &BlurredBasisFor(blur_px) : nullptr;
+  const auto cost = [&](double x) { return StepRampCost(profile, k0, k1, x, blurred, stretch); };
+  // Coarse: every 0.25 px over ±0.5 px around the parabola's estimate (the shading pulls it by
+  // ~0.1 px).
+  const double x_par = best + parabola;
+  double x_best = x_par, f_best = std::numeric_limits<double>::infinity();
+  for (int i = -2; i <= 2; ++i) {
+    const double x = x_par + 0.25 * i;
+    const double f = cost(x);
+    if (f < f_best) {
+      f_best = f;
+      x_best = x;
+    }
+  }
+  if (!std::isfinite(f_best)) return parabola;
+  // Fine: the sharp model's cost is smooth between pixel boundaries (k ± 0.5), so the minimum is
+  // refined by successive parabolic interpolation in the piece around the coarse minimum, from a
+  // bracket a < m < b with f(m) <= f(a), f(b).
+  const double piece_lo = std::max(x_par - 0.5, std::round(x_best) - 0.5);
+  const double piece_hi = std::min(x_par + 0.5, std::round(x_best) + 0.5);
+  double a = std::max(piece_lo, x_best - 0.25), b = std::min(piece_hi, x_best + 0.25);
+  double m = x_best, fm = f_best, fa = cost(a), fb = cost(b);
+  for (int it = 0; it < 6 && b - a > 1e-4; ++it) {
+    const double da = m - a, db = m - b;
+    const double num = da * da * (fm - fb) - db * db * (fm - fa);
+    const double den = 2.0 * (da * (fm - fb) - db * (fm - fa));
+    double v = std::abs(den) > 0.0 ? m - num / den : 0.5 * (a + b);
+    // Keep the new point strictly inside the bracket, away from m.
+    if (!(v > a && v < b) || std::abs(v - m) < 1e-5) {
+      v = (m - a > b - m) ? 0.5 * (a + m) : 0.5 * (m + b);
+    }
+    const double fv = cost(v);
+    if (fv <= fm) {
+      if (v < m) {
+        b = m;
+        fb = fm;
+      } else {
+        a = m;
+        fa = fm;
+      }
+      m = v;
+      fm = fv;
+    } else if (v < m) {
+      a = v;
+      fa = fv;
+    } else {
+      b = v;
+      fb = fv;
+    }
+  }
+  return m - best;
+}
+
+// stretch = 1 / cos of the angle between the search line and the edge's normal.
+double LocateEdge(const float* profile, int count, int best, double gm, double g0, double gp,
+                  EdgeLocator locator, double blur_px, double stretch) {
+  const double parabola = LocateParabola(gm, g0, gp);
+  if (locator == EdgeLocator::kParabola) return parabola;
+  return LocateStepRamp(profile, count, best, parabola, blur_px, stretch);
 }
 
 // Range [s_lo, s_hi] of s for which p + s e stays in [0, w − 1] × [0, h − 1], intersected with
@@ -246,6 +450,12 @@ std::string LegEdgeOptions::Validate() const {
     AddBad(&m, "occlusion_margin_px", occlusion_margin_px, "must be finite and >= 0");
   }
   if (min_points < 3) AddBad(&m, "min_points", min_points, "must be >= 3");
+  if (!(edge_blur_px >= 0.0 && edge_blur_px <= 3.0)) {
+    AddBad(&m, "edge_blur_px", edge_blur_px, "px, must be in [0, 3]");
+  }
+  if (locator != EdgeLocator::kStepRamp && locator != EdgeLocator::kParabola) {
+    AddBad(&m, "locator", static_cast<double>(locator), "not an EdgeLocator");
+  }
   if (loss != RobustLoss::kTukey && loss != RobustLoss::kHuber) {
     AddBad(&m, "loss", static_cast<double>(loss), "not a RobustLoss");
   }
@@ -346,52 +556,82 @@ LimbSearchStats FindLimbEdgePoints(const render::ImageView8& image, const Camera
   // Polarity: g = −dI/ds along the outward normal is positive on a bright leg's limb.
   const double polarity_sign = options.polarity == EdgePolarity::kDarkLeg ? -1.0 : 1.0;
   const bool either = options.polarity == EdgePolarity::kEither;
-  constexpr int kMaxProfile = 2 * static_cast<int>(kMaxSearchHalfWidthPx) + 4;
+  // The search lines are image rows (where the curve is closer to vertical) or columns, every
+  // `grid` pixels, and the profile is read at whole pixels: which pixels are read, and so the
+  // sub-pixel edge found, does not move with the prediction (a servo's prediction moves by a
+  // fraction of a pixel every frame). A row or column crosses the curve at up to 45° from its
+  // normal, so it is searched over ±half/cos to cover ±half across the curve.
+  const int grid = std::max(1, static_cast<int>(std::lround(options.sample_step_px)));
   float profile[kMaxProfile];
   constexpr double kFallbackDt = 0.005;  // step when a position cannot be projected
 
-  double t = t_begin;
-  while (t <= t_end) {
+  auto point_at = [&](double t) {
     Eigen::Vector3d X = start + t * axis;
     if (refine) X -= n_guide.dot(X) * n_guide;
+    return X;
+  };
+
+  // Searches grid line `line` (row v = line when along_x, else column u = line) where the curve
+  // crosses it, near the curve parameter t_line.
+  auto search_line = [&](double t_line, bool along_x, int line) {
+    ++stats.samples;
+    const Eigen::Vector3d X = point_at(t_line);
     Eigen::Vector2d p;
     Matrix23d J;
-    ++stats.samples;
     if (camera.Project(X, &p, &J) != ProjectionStatus::kOk) {
       ++stats.out_of_view;
-      t += kFallbackDt;
-      continue;
+      return;
     }
-    const Eigen::Vector2d tangent = J * axis;  // px per unit t
+    const Eigen::Vector2d tangent = J * axis;
     const double speed = tangent.norm();
-    if (!(speed > 1e-9)) break;  // the leg is seen end-on
-    t += options.sample_step_px / speed;
+    if (!(speed > 1e-9)) {
+      ++stats.out_of_view;
+      return;
+    }
+    const Eigen::Vector2d t_hat = tangent / speed;
     const double depth = X.norm();
     const Eigen::Vector3d d = X / depth;
-    // The image normal e of the curve, oriented outward, and the 3-D displacement dX (⟂ d, at X)
-    // that moves the pixel by e: dX = [b1 b2] (J [b1 b2])⁻¹ e with b1 = n_guide, b2 = d × n_guide
-    // (both ⟂ d: X lies in the guide plane).
+    // The image normal of the curve, oriented outward, and the 3-D displacements (⟂ d, at X) that
+    // move the pixel: [b1 b2] (J [b1 b2])⁻¹ with b1 = n_guide, b2 = d × n_guide (both ⟂ d: X
+    // lies in the guide plane).
     const Eigen::Vector3d b2 = d.cross(n_guide);
     Eigen::Matrix2d M;
     M.col(0) = J * n_guide;
     M.col(1) = J * b2;
-    Eigen::Vector2d e(-tangent.y() / speed, tangent.x() / speed);
-    if (e.dot(M.col(0)) < 0.0) e = -e;
+    Eigen::Vector2d normal(-t_hat.y(), t_hat.x());
+    if (normal.dot(M.col(0)) < 0.0) normal = -normal;
     const double det = M.determinant();
     if (!camera.InImage(p) || !(std::abs(det) > 0.0)) {
       ++stats.out_of_view;
-      continue;
+      return;
     }
-    const Eigen::Vector2d coef = M.inverse() * e;
-    const Eigen::Vector3d dX = coef.x() * n_guide + coef.y() * b2;  // m per px, at depth
+    // The search direction: along the line, outward.
+    const int ax = along_x ? 0 : 1;  // the coordinate that varies along the line
+    const int lx = 1 - ax;           // the coordinate that names the line
+    Eigen::Vector2d e = Eigen::Vector2d::Zero();
+    e[ax] = normal[ax] >= 0.0 ? 1.0 : -1.0;
+    const double cos_e = std::abs(normal[ax]);
+    if (!(cos_e > 0.5) || !(std::abs(t_hat[lx]) > 0.5)) {  // the caller picks the axis: >= 0.7
+      ++stats.out_of_view;
+      return;
+    }
+    // The curve's crossing with the line (along its tangent) and its 3-D point, to first order.
+    const Eigen::Vector2d pc = p + ((line - p[lx]) / t_hat[lx]) * t_hat;
+    Eigen::Matrix<double, 3, 2> B;
+    B.col(0) = n_guide;
+    B.col(1) = b2;
+    const Eigen::Matrix<double, 3, 2> BMinv = B * M.inverse();
+    const Eigen::Vector3d Xc = X + BMinv * (pc - p);
+    const Eigen::Vector3d dX = BMinv * e;  // m per px along the line, at depth
     const double rad_per_px = dX.norm() / depth;
+    const double half_line = half / cos_e;
     // Other legs: on one's silhouette → skip; else cut the segment where one begins.
-    double s_lo = -half, s_hi = half;
+    double s_lo = -half_line, s_hi = half_line;
     const double margin_rad = options.occlusion_margin_px * rad_per_px;
     bool on_other = false, other_nearer = false;
     for (size_t k = 0; k < silhouette_count; ++k) {
       double lo, hi;
-      if (!SilhouetteInterval(silhouettes[k], X, dX, depth, margin_rad, &lo, &hi)) continue;
+      if (!SilhouetteInterval(silhouettes[k], Xc, dX, depth, margin_rad, &lo, &hi)) continue;
       if (lo <= 0.0 && hi >= 0.0) {
         on_other = true;
         other_nearer = other_nearer || Nearer(silhouettes[k], d, depth);
@@ -403,37 +643,48 @@ LimbSearchStats FindLimbEdgePoints(const render::ImageView8& image, const Camera
     }
     if (on_other) {
       ++(other_nearer ? stats.occluded : stats.against_leg);
-      continue;
+      return;
     }
     if (s_lo > -2.5 || s_hi < 2.5) {
       ++stats.against_leg;  // boxed in between other legs
-      continue;
+      return;
     }
     // The segment clipped to the image, both ends inside the model's domain (the image of the
     // unified model's sphere is a disc; outside it the image is black).
     double c_lo, c_hi;
-    if (!ClipToImage(p, e, half, image.width, image.height, &c_lo, &c_hi) || c_lo > -2.5 ||
+    if (!ClipToImage(pc, e, half_line, image.width, image.height, &c_lo, &c_hi) || c_lo > -2.5 ||
         c_hi < 2.5) {
       ++stats.out_of_view;
-      continue;
+      return;
     }
     s_lo = std::max(s_lo, c_lo);
     s_hi = std::min(s_hi, c_hi);
     // Domain check through Project (closed form for every model here, where BackProject may
     // iterate): the 3-D points that map to the segment's ends, to first order.
     Eigen::Vector2d end_pixel;
-    if (camera.Project(X + s_lo * dX, &end_pixel) != ProjectionStatus::kOk ||
-        camera.Project(X + s_hi * dX, &end_pixel) != ProjectionStatus::kOk) {
+    if (camera.Project(Xc + s_lo * dX, &end_pixel) != ProjectionStatus::kOk ||
+        camera.Project(Xc + s_hi * dX, &end_pixel) != ProjectionStatus::kOk) {
       ++stats.out_of_view;
-      continue;
+      return;
     }
-    const int count = std::min(kMaxProfile, static_cast<int>(std::floor(s_hi - s_lo)) + 1);
-    for (int k = 0; k < count; ++k) {
-      const Eigen::Vector2d q = p + (s_lo + k) * e;
-      profile[k] = static_cast<float>(Sample(image, q.x(), q.y()));
+    // Whole pixels q = first + sign · k along the line, s = sign · (q − pc[ax]) in [s_lo, s_hi].
+    const int sign = e[ax] > 0.0 ? 1 : -1;
+    const int first = sign > 0 ? static_cast<int>(std::ceil(pc[ax] + s_lo))
+                               : static_cast<int>(std::floor(pc[ax] - s_lo));
+    const int last = sign > 0 ? static_cast<int>(std::floor(pc[ax] + s_hi))
+                              : static_cast<int>(std::ceil(pc[ax] - s_hi));
+    const int count = std::min(kMaxProfile, sign * (last - first) + 1);
+    if (along_x) {
+      const uint8_t* row = image.data + static_cast<size_t>(line) * image.stride;
+      for (int k = 0; k < count; ++k) profile[k] = row[first + sign * k];
+    } else {
+      const uint8_t* column = image.data + line;
+      for (int k = 0; k < count; ++k) {
+        profile[k] = column[static_cast<size_t>(first + sign * k) * image.stride];
+      }
     }
     // Central-difference gradient along e, signed by the polarity; the peak must be interior so
-    // that the parabola has both neighbours.
+    // that the sub-pixel locator has neighbours on both sides.
     auto gradient = [&](int k) {
       const double g = -0.5 * (profile[k + 1] - profile[k - 1]) * polarity_sign;
       return either ? std::abs(g) : g;
@@ -449,20 +700,66 @@ LimbSearchStats FindLimbEdgePoints(const render::ImageView8& image, const Camera
     }
     if (best < 0) {
       ++stats.no_edge;
-      continue;
+      return;
     }
     const double gm = gradient(best - 1), g0 = best_g, gp = gradient(best + 1);
-    const double curvature = gm - 2.0 * g0 + gp;
-    double delta = curvature < 0.0 ? 0.5 * (gm - gp) / curvature : 0.0;
-    delta = std::clamp(delta, -0.5, 0.5);
+    const double delta = LocateEdge(profile, count, best, gm, g0, gp, options.locator,
+                                    options.edge_blur_px, 1.0 / cos_e);
+    Eigen::Vector2d pixel;
+    pixel[ax] = first + sign * (best + delta);
+    pixel[lx] = line;
     EdgePoint point;
-    if (!MakeEdgePoint(camera, p + (s_lo + best + delta) * e, &point)) {
+    if (!MakeEdgePoint(camera, pixel, &point)) {
       ++stats.out_of_view;
-      continue;
+      return;
     }
-    point.gradient = g0 - 0.25 * (gm - gp) * delta;
+    point.gradient = g0;
     points->push_back(point);
     ++stats.found;
+  };
+
+  // March along the curve about one grid step at a time; every grid line crossed between two
+  // consecutive positions is searched (rows while the curve is closer to vertical, else columns).
+  double t = t_begin;
+  bool have_previous = false;
+  double t_previous = 0.0;
+  Eigen::Vector2d p_previous = Eigen::Vector2d::Zero();
+  while (t <= t_end) {
+    Eigen::Vector2d p;
+    Matrix23d J;
+    if (camera.Project(point_at(t), &p, &J) != ProjectionStatus::kOk) {
+      ++stats.samples;
+      ++stats.out_of_view;
+      have_previous = false;
+      t += kFallbackDt;
+      continue;
+    }
+    const Eigen::Vector2d tangent = J * axis;  // px per unit t
+    const double speed = tangent.norm();
+    if (!(speed > 1e-9)) break;  // the leg is seen end-on
+    const bool along_x = std::abs(tangent.y()) >= std::abs(tangent.x());
+    const int lx = along_x ? 1 : 0;
+    if (have_previous) {
+      const double a = p_previous[lx], b = p[lx];
+      // Lines m · grid in (a, b] (or [b, a)), each searched once; only those in the image.
+      const double last_line = along_x ? image.height - 1 : image.width - 1;
+      const double lo = std::max(std::min(a, b), -1.0);
+      const double hi = std::min(std::max(a, b), last_line + 1.0);
+      const long m_lo = static_cast<long>(std::floor(lo / grid));
+      const long m_hi = static_cast<long>(std::ceil(hi / grid));
+      const long step = b > a ? 1 : -1;
+      for (long m = b > a ? m_lo : m_hi; b != a && m >= m_lo && m <= m_hi; m += step) {
+        const double line = static_cast<double>(m * grid);
+        const bool crossed = b > a ? (line > a && line <= b) : (line >= b && line < a);
+        if (!crossed || line < 0.0 || line > last_line) continue;
+        search_line(t_previous + (line - a) / (b - a) * (t - t_previous), along_x,
+                    static_cast<int>(m * grid));
+      }
+    }
+    have_previous = true;
+    t_previous = t;
+    p_previous = p;
+    t += grid / speed;
   }
   return stats;
 }
@@ -697,6 +994,42 @@ LegStatus SearchAndFit(const render::ImageView8& image, const CameraModel& camer
   return LegStatus::kVisible;
 }
 
+// The leg-level checks after both limbs are fitted: the apparent width and eq. (11). Sets the
+// observation visible with u_C, or refuses it with a reason.
+LegStatus FinishLeg(const LegPrediction& pred, const Eigen::Vector3d& n1p,
+                    const Eigen::Vector3d& n2p, int j, const LegEdgeOptions& options,
+                    LegObservation* o) {
+  char buffer[256];
+  // Apparent width: the limb planes make the angle π − 2θ, sin θ = R / (distance to the axis),
+  // i.e. −n1 · n2 = cos 2θ (eq. 3). Compare with the prediction's.
+  const Eigen::Vector3d& n1 = o->limbs[0].n_C;
+  const Eigen::Vector3d& n2 = o->limbs[1].n_C;
+  const double two_theta = std::acos(std::clamp(-n1.dot(n2), -1.0, 1.0));
+  const double two_theta_pred = std::acos(std::clamp(-n1p.dot(n2p), -1.0, 1.0));
+  if (!(std::abs(two_theta - two_theta_pred) <= options.max_width_error * two_theta_pred) ||
+      n1.dot(n1p) <= 0.0 || n2.dot(n2p) <= 0.0) {
+    std::snprintf(buffer, sizeof(buffer),
+                  "leg %d: limbs inconsistent with the leg (they subtend %.4g rad, a leg of "
+                  "radius %g m at the predicted distance %.4g rad)",
+                  j, two_theta, pred.radius, two_theta_pred);
+    Refuse(o, LegStatus::kInconsistent, buffer);
+    return LegStatus::kInconsistent;
+  }
+  Eigen::Vector3d u;
+  if (!LegDirectionFromLimbs(n1, n2, pred.p_C_B - pred.p_C_A, &u, options.min_limb_separation)) {
+    std::snprintf(buffer, sizeof(buffer),
+                  "leg %d: limb planes parallel (|n1 x n2| = %.3g < min_limb_separation %g)", j,
+                  n1.cross(n2).norm(), options.min_limb_separation);
+    Refuse(o, LegStatus::kParallelLimbs, buffer);
+    return LegStatus::kParallelLimbs;
+  }
+  o->visible = true;
+  o->status = LegStatus::kVisible;
+  o->reason.clear();
+  o->u_C = u;
+  return LegStatus::kVisible;
+}
+
 }  // namespace
 
 const std::array<LegObservation, kLegs>& ObserveLegs(
@@ -721,6 +1054,9 @@ const std::array<LegObservation, kLegs>& ObserveLegs(
     }
   };
   std::array<OtherLeg, kLegs - 1> others;
+  // Round 1 only guides round 2 (when there is one): the cheaper locator is enough.
+  LegEdgeOptions first_options = options;
+  if (options.refine_half_width_px > 0.0) first_options.locator = EdgeLocator::kParabola;
   for (int j = 0; j < kLegs; ++j) {
     LegObservation& o = workspace->observations[j];
     o.search = {};
@@ -742,8 +1078,9 @@ const std::array<LegObservation, kLegs>& ObserveLegs(
     others_of(j, &others);
     status[j] = LegStatus::kVisible;
     for (int limb = 0; limb < 2 && status[j] == LegStatus::kVisible; ++limb) {
-      status[j] = SearchAndFit(image, camera, pred, j, limb, others.data(), others.size(), options,
-                               nullptr, &workspace->points[j][limb], &o, buffer, sizeof(buffer));
+      status[j] =
+          SearchAndFit(image, camera, pred, j, limb, others.data(), others.size(), first_options,
+                       nullptr, &workspace->points[j][limb], &o, buffer, sizeof(buffer));
     }
     if (status[j] != LegStatus::kVisible) Refuse(&o, status[j], buffer);
   }
@@ -771,35 +1108,43 @@ const std::array<LegObservation, kLegs>& ObserveLegs(
         continue;
       }
     }
-    // Apparent width: the limb planes make the angle π − 2θ, sin θ = R / (distance to the axis),
-    // i.e. −n1 · n2 = cos 2θ (eq. 3). Compare with the prediction's.
-    const Eigen::Vector3d& n1 = o.limbs[0].n_C;
-    const Eigen::Vector3d& n2 = o.limbs[1].n_C;
-    const double two_theta = std::acos(std::clamp(-n1.dot(n2), -1.0, 1.0));
-    const double two_theta_pred = std::acos(std::clamp(-n1p[j].dot(n2p[j]), -1.0, 1.0));
-    if (!(std::abs(two_theta - two_theta_pred) <= options.max_width_error * two_theta_pred) ||
-        n1.dot(n1p[j]) <= 0.0 || n2.dot(n2p[j]) <= 0.0) {
-      std::snprintf(buffer, sizeof(buffer),
-                    "leg %d: limbs inconsistent with the leg (they subtend %.4g rad, a leg of "
-                    "radius %g m at the predicted distance %.4g rad)",
-                    j, two_theta, pred.radius, two_theta_pred);
-      status[j] = LegStatus::kInconsistent;
-      Refuse(&o, status[j], buffer);
+    status[j] = FinishLeg(pred, n1p[j], n2p[j], j, options, &o);
+  }
+  return workspace->observations;
+}
+
+const std::array<LegObservation, kLegs>& RefitObservedLegs(
+    const std::array<LegPrediction, kLegs>& predictions, const LegEdgeOptions& options,
+    LegEdgeWorkspace* workspace) {
+  if (workspace == nullptr) throw std::invalid_argument("leg edges: workspace is null");
+  const std::string message = options.Validate();
+  if (!message.empty()) throw std::invalid_argument("leg edges: " + message);
+  char buffer[256];
+  for (int j = 0; j < kLegs; ++j) {
+    LegObservation& o = workspace->observations[j];
+    if (!o.visible) continue;
+    const LegPrediction& pred = predictions[j];
+    Eigen::Vector3d n1p, n2p;
+    if (!PredictionUsable(pred) ||
+        !render::PredictCylinderLimbs(pred.p_C_A, pred.p_C_B, pred.radius, &n1p, &n2p)) {
+      Refuse(&o, LegStatus::kBadPrediction, "bad prediction");
       continue;
     }
-    Eigen::Vector3d u;
-    if (!LegDirectionFromLimbs(n1, n2, pred.p_C_B - pred.p_C_A, &u, options.min_limb_separation)) {
-      std::snprintf(buffer, sizeof(buffer),
-                    "leg %d: limb planes parallel (|n1 x n2| = %.3g < min_limb_separation %g)", j,
-                    n1.cross(n2).norm(), options.min_limb_separation);
-      status[j] = LegStatus::kParallelLimbs;
-      Refuse(&o, status[j], buffer);
-      continue;
+    bool ok = true;
+    for (int limb = 0; limb < 2 && ok; ++limb) {
+      // From scratch (MSAC start): the previous fit is of other points.
+      o.limbs[limb] = FitLimbPlane(&workspace->points[j][limb], pred, options, nullptr);
+      if (!o.limbs[limb].ok) {
+        std::snprintf(buffer, sizeof(buffer),
+                      "leg %d: fit rejected (limb %d, refit: %s; %d points, %d inliers, RMS "
+                      "%.3g px)",
+                      j, limb, o.limbs[limb].reason, o.limbs[limb].points, o.limbs[limb].inliers,
+                      o.limbs[limb].rms_px);
+        Refuse(&o, LegStatus::kFitRejected, buffer);
+        ok = false;
+      }
     }
-    o.visible = true;
-    o.status = LegStatus::kVisible;
-    o.reason.clear();
-    o.u_C = u;
+    if (ok) FinishLeg(pred, n1p, n2p, j, options, &o);
   }
   return workspace->observations;
 }

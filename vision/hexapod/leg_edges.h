@@ -4,10 +4,12 @@
 // direction visual servoing and for calibration (issue 6 "Vision", seed 002 §II-C, §IV-A).
 //
 // One algorithm for every central camera (pinhole/Brown, Tsai, unified catadioptric): the edges
-// are searched in the image along the image normal of the PREDICTED limb curve, every edge point
-// is back-projected to a unit ray, and the limb is fitted as a plane through the viewpoint — a
-// great circle on the unit sphere, normal = smallest eigenvector of Σ w_i r_i r_iᵀ — robustly
-// (RANSAC start, then IRLS with Tukey or Huber weights on the point-to-curve distance in pixels).
+// are searched in the image around the PREDICTED limb curve, along the image rows or columns of a
+// fixed pixel grid that cross it, located to sub-pixel by a model of a cylinder's limb (a step
+// with the √ shading ramp inside it), every edge point is back-projected to a unit ray, and the
+// limb is fitted as a plane through the viewpoint — a great circle on the unit sphere, normal =
+// smallest eigenvector of Σ w_i r_i r_iᵀ — robustly (RANSAC start, then IRLS with Tukey or Huber
+// weights on the point-to-curve distance in pixels).
 // For a perspective camera this is a straight-line fit; for the unified model it is the fit of the
 // line's conic (seed eq. 1–2) done on the sphere, so eq. (10) is never inverted on noisy conics.
 //
@@ -66,21 +68,42 @@ enum class EdgePolarity {
 
 enum class RobustLoss { kTukey, kHuber };
 
+// How an edge is located to sub-pixel along its search line (README "Edge locator").
+enum class EdgeLocator {
+  // Least-squares fit of a pixel-integrated step with the √(distance) shading ramp every cylinder
+  // has just inside its limb, blurred by LegEdgeOptions::edge_blur_px: unbiased when that blur is
+  // the image's (0 for the renderer's sharp images).
+  kStepRamp,
+  // Vertex of the parabola through the central-difference gradient peak: exact for a bare
+  // anti-aliased step, but pulled up to ~0.1 px into a shaded leg. Insensitive to blur: the
+  // choice when the image's blur is not known.
+  kParabola,
+};
+
 struct LegEdgeOptions {
-  // Stage 1 (search). Half-length (px) of the search segment along the image normal of the
-  // predicted limb, in the first pass: 48 px covers a 2 cm prediction error at 1 m with
-  // f ≈ 2000 px plus some orientation error. (0, 256].
+  // Stage 1 (search). Half-length (px, measured across the predicted limb curve; the row or column
+  // searched is longer by 1/cos) of the search segment in the first pass: 48 px covers a 2 cm
+  // prediction error at 1 m with f ≈ 2000 px plus some orientation error. (0, 256].
   double search_half_width_px = 48.0;
-  // Second pass: the search is repeated along the normal of the first fit over ± this (px);
+  // Second pass: the search is repeated around the curve of the first fit over ± this (px);
   // 0 = single pass. [0, search_half_width_px].
   double refine_half_width_px = 4.0;
-  // Spacing of the search positions along the limb curve (px), > 0.
+  // Spacing of the search lines (px), > 0, rounded to a whole number >= 1: the edges are searched
+  // along the image rows (where the limb curve is closer to vertical) or columns whose index is a
+  // multiple of it, on whole pixels, so the edge points do not move with the prediction.
   double sample_step_px = 4.0;
   // Length at each end of the predicted leg not searched (m, >= 0): the ends (joints, plates,
   // the open end of the tube) are not limbs, and the prediction of A_j, B_j may be off.
   double end_margin = 0.03;
-  // Smallest accepted grey-level gradient across the edge (grey levels per px, > 0).
+  // Smallest accepted grey-level gradient along the search line (grey levels per px, > 0).
   double min_gradient = 8.0;
+  // Sub-pixel locator of the final pass (the first, wide pass of a two-pass ObserveLegs only
+  // guides the second and always uses kParabola).
+  EdgeLocator locator = EdgeLocator::kStepRamp;
+  // kStepRamp: σ (px) of the optics' Gaussian blur (point spread function) the model includes, in
+  // [0, 3]; 0 = a sharp image (the renderer's default). Set it to the camera's: left at 0 on an
+  // image blurred by σ = 1 px the edges come out ~0.3 px too far out (README "Edge locator").
+  double edge_blur_px = 0.0;
   EdgePolarity polarity = EdgePolarity::kBrightLeg;
   // Other legs' silhouettes, widened by this margin (px, >= 0), are kept out of the search: a
   // search position on another leg's silhouette is skipped (occluded when that leg is nearer,
@@ -155,10 +178,12 @@ struct LimbSearchStats {
 };
 
 // Stage 1: edge points of limb `limb` (0 or 1) of the leg `prediction`, appended to *points.
-// The search positions sample the projection of the predicted limb generator A + R n_i + t (B − A)
-// (t in the leg minus end_margin at each end) every sample_step_px; at each the edge is the
-// largest gradient of the right polarity along the image normal of the limb curve within
-// ± search_half_width_px, located to sub-pixel by a parabola through the gradient peak. Positions
+// The search lines are the image rows (where the curve is closer to vertical) or columns whose
+// index is a multiple of sample_step_px (rounded) that cross the projection of the predicted limb
+// generator A + R n_i + t (B − A) (t in the leg minus end_margin at each end); on each the edge is
+// the largest gradient of the right polarity within ± search_half_width_px / cos θ of the crossing
+// (θ <= 45°: the line's angle to the curve's normal), read at whole pixels and located to
+// sub-pixel by options.locator (README "Edge locator"). Positions
 // on the silhouette of one of the `others` (count `other_count` <= kMaxOtherLegs; must not
 // include the leg itself) or whose search segment leaves the image or the model's domain are
 // skipped; the segment is cut where it enters another leg's silhouette.
@@ -240,6 +265,17 @@ struct LegEdgeWorkspace {
 // FindLimbEdgePoints(). The result lives in *workspace (also returned).
 const std::array<LegObservation, kLegs>& ObserveLegs(
     const render::ImageView8& image, const CameraModel& camera,
+    const std::array<LegPrediction, kLegs>& predictions, const LegEdgeOptions& options,
+    LegEdgeWorkspace* workspace);
+
+// Stage 2 and the leg checks again on the edge points now held in *workspace, after the caller
+// edited them (removed clutter, or — issue 6's accuracy experiment — added noise and outliers):
+// for every leg that ObserveLegs() reported visible, both limbs are refitted from scratch (MSAC
+// start, not the previous fit), then the apparent-width check and eq. (11) as in ObserveLegs().
+// Legs not visible are left as they are; a leg can become not visible (with a reason). The
+// points' rays must match their pixels (MakeEdgePoint). Does not allocate while the reasons fit
+// their capacity. Throws std::invalid_argument for invalid options or a null workspace.
+const std::array<LegObservation, kLegs>& RefitObservedLegs(
     const std::array<LegPrediction, kLegs>& predictions, const LegEdgeOptions& options,
     LegEdgeWorkspace* workspace);
 
