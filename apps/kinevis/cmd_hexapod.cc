@@ -96,6 +96,10 @@ HexapodRecordSummary RecordHexapodDataset(HexapodRig* rig, const HexapodRecordOp
   dataset.camera_name = rig->camera_name();
   dataset.camera_model = rig->camera_model_spec();
   dataset.X_BC_hint = rig->X_BC_hint();
+  dataset.edge_locator = rig->edge_options().locator == vision::hexapod::EdgeLocator::kParabola
+                             ? "parabola"
+                             : "step-ramp";
+  dataset.edge_blur_px = rig->edge_options().edge_blur_px;
   dataset.source =
       (rig->simulated() ? "simulated world " : "deployment ") +
       (rig->config_path().empty() ? std::string("(built-in defaults)") : rig->config_path());
@@ -198,6 +202,13 @@ HexapodCalibrationRun CalibrateHexapodFromDataset(const HexapodCalibrateOptions&
   options.calibration.loss = ParseLoss(o.loss);
   options.calibration.scale_estimator = ParseScale(o.scale);
   options.calibration.correct_scale = o.correct_scale;
+  if (!o.edge_locator.empty() || o.edge_blur_px >= 0) {
+    options.edge_locator_from_dataset = false;
+    const std::string locator = !o.edge_locator.empty() ? o.edge_locator : dataset.edge_locator;
+    options.edges.locator = locator == "parabola" ? vision::hexapod::EdgeLocator::kParabola
+                                                  : vision::hexapod::EdgeLocator::kStepRamp;
+    options.edges.edge_blur_px = o.edge_blur_px >= 0 ? o.edge_blur_px : dataset.edge_blur_px;
+  }
   run.calibration = calibration::CalibrateHexapodDataset(dataset, *camera, options);
 
   calibration::HexapodCalibrationMetadata metadata;
@@ -374,6 +385,7 @@ HexapodServoRun ServoHexapod(HexapodRig* rig, const HexapodServoOptions& o) {
 
   rig->Enable();
   control::ImageLegFeatureOptions feature_options;
+  feature_options.edges = rig->edge_options();
   feature_options.p_C_A = p_C_A;
   // A real camera (or a world in another process) delivers frames when it does: grab and extract
   // in a worker thread so that the drive cycle never waits for the camera. The simulated world in
@@ -547,6 +559,13 @@ void AddHexapodCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo,
   ch->add_option("--scale", co->calibrate.scale, "Estimator of eq. 16's scale")
       ->capture_default_str()
       ->check(CLI::IsMember({"least-squares", "median-ratio", "max-ratio"}));
+  ch->add_option("--edge-locator", co->calibrate.edge_locator,
+                 "Sub-pixel edge locator (default: the dataset's, i.e. the camera config's): "
+                 "step-ramp (accurate when the optics' blur is known) or parabola (blur-proof)")
+      ->check(CLI::IsMember({"step-ramp", "parabola"}));
+  ch->add_option("--edge-blur", co->calibrate.edge_blur_px,
+                 "Optics' blur sigma (px) the step-ramp locator models (default: the dataset's)")
+      ->check(CLI::Range(0.0, 3.0));
   ch->add_flag("--correct-scale", co->calibrate.correct_scale,
                "Divide the estimates by the scale (an error on the leg radius)");
   ch->add_option("--passes", co->calibrate.passes,

@@ -48,6 +48,11 @@ struct HexapodCalibrateOptions {
   std::string scale = "least-squares";     // least-squares | median-ratio | max-ratio
   bool correct_scale = false;
   int passes = 2;
+  // The edge locator: "" = what the dataset says (the recording rig's camera settings), else
+  // "step-ramp" or "parabola", with edge_blur_px (px, the step-ramp model's blur; < 0 = the
+  // dataset's).
+  std::string edge_locator;
+  double edge_blur_px = -1.0;
 };
 
 struct HexapodCalibrationRun {

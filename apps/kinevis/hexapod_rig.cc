@@ -79,6 +79,8 @@ HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.
     }
     camera_name_ = camera->name;
     camera_model_spec_ = camera->model;
+    edge_options_.locator = vision::hexapod::EdgeLocator::kStepRamp;
+    edge_options_.edge_blur_px = camera->render.blur_sigma_px;
     X_BC_hint_ = camera->X_WC;
     camera_fps_ = camera->fps;
     camera_source = "sim:" + camera->name;
@@ -132,7 +134,23 @@ HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.
     X_BC_hint_ = r.Pose("camera.pose", X_BC_hint_);
     camera_fps_ = r.Number("camera.fps", camera_fps_);
     if (!(camera_fps_ > 0)) r.Problem("camera.fps: must be > 0");
-    r.CheckKeys("camera", {"name", "source", "model", "pose", "fps"});
+    // A real camera's blur is not known unless measured: the parabola locator (insensitive to
+    // blur) by default, the step-ramp model when the blur is given.
+    edge_options_.edge_blur_px = r.Number("camera.edge_blur_px", 0.0);
+    if (!(edge_options_.edge_blur_px >= 0 && edge_options_.edge_blur_px <= 3)) {
+      r.Problem("camera.edge_blur_px: must be in [0, 3] px");
+    }
+    const std::string locator =
+        r.Text("camera.edge_locator", r.Has("camera.edge_blur_px") ? "step-ramp" : "parabola");
+    if (locator == "step-ramp") {
+      edge_options_.locator = vision::hexapod::EdgeLocator::kStepRamp;
+    } else if (locator == "parabola") {
+      edge_options_.locator = vision::hexapod::EdgeLocator::kParabola;
+    } else {
+      r.Problem("camera.edge_locator: '" + locator + "' is not step-ramp or parabola");
+    }
+    r.CheckKeys("camera",
+                {"name", "source", "model", "pose", "fps", "edge_locator", "edge_blur_px"});
     r.CheckKeys("", {"rig", "robot", "drives", "camera"});
     r.ThrowIfProblems();
     clock_ = &hal::SteadyClock::Instance();

@@ -16,6 +16,7 @@
 
 #include "hal/camera/camera.h"
 #include "robots/hexapod/hexapod_model.h"
+#include "vision/hexapod/leg_edges.h"
 
 namespace kinevis::hal {
 class Clock;
@@ -69,6 +70,10 @@ class HexapodRig {
   hal::Camera& camera() const { return *camera_; }
   // The platform's home pose (the description's; HexapodModel::NominalPose() without one).
   const Eigen::Isometry3d& home_pose() const { return X_BP_home_; }
+  // How this camera's leg edges are located (vision/hexapod/leg_edges.h): simulated, the
+  // step-ramp model with the renderer's blur (known exactly); real, `camera.edge_locator` and
+  // `camera.edge_blur_px` of the deployment file (docs/hexapod-rig.md).
+  const vision::hexapod::LegEdgeOptions& edge_options() const { return edge_options_; }
   // The drive cycle (SYNC period), s.
   double cycle_period_s() const { return 1e-6 * static_cast<double>(cycle_period_.count()); }
 
@@ -103,6 +108,7 @@ class HexapodRig {
   std::unique_ptr<hal::Camera> camera_;
   Eigen::Isometry3d X_BC_hint_ = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d X_BP_home_ = robots::HexapodModel::NominalPose();
+  vision::hexapod::LegEdgeOptions edge_options_;
   double camera_fps_ = 10.0;
   std::chrono::microseconds cycle_period_{4000};
 };

@@ -66,6 +66,13 @@ DatasetCalibrationResult CalibrateHexapodDataset(const HexapodDataset& dataset,
     frames[k].X_BP = fk.converged() ? fk.X_BP : pose.X_BP_commanded;
   }
 
+  vision::hexapod::LegEdgeOptions edges = options.edges;
+  if (options.edge_locator_from_dataset) {
+    edges.locator = dataset.edge_locator == "parabola" ? vision::hexapod::EdgeLocator::kParabola
+                                                       : vision::hexapod::EdgeLocator::kStepRamp;
+    edges.edge_blur_px = dataset.edge_blur_px;
+  }
+
   DatasetCalibrationResult out;
   Eigen::Isometry3d X_CB = dataset.X_BC_hint.inverse();
   bool have_points = false;
@@ -92,7 +99,7 @@ DatasetCalibrationResult CalibrateHexapodDataset(const HexapodDataset& dataset,
       view.height = camera.height();
       view.stride = static_cast<size_t>(camera.width());
       const std::array<LegObservation, kHexapodLegs>& obs =
-          vision::hexapod::ObserveLegs(view, camera, predictions, options.edges, workspace.get());
+          vision::hexapod::ObserveLegs(view, camera, predictions, edges, workspace.get());
       DatasetPoseReport& report = reports[k];
       report.index = dataset.poses[k].index;
       report.fk_converged = frames[k].fk_converged;

@@ -26,6 +26,9 @@ namespace kinevis::calibration {
 
 struct DatasetCalibrationOptions {
   vision::hexapod::LegEdgeOptions edges;
+  // edges.locator and edges.edge_blur_px are taken from the dataset (what the recording rig knew
+  // about its camera's optics) unless this is false.
+  bool edge_locator_from_dataset = true;
   HexapodCalibrationOptions calibration;
   int passes = 2;  // extraction + calibration rounds, >= 1 (see above)
   // Empty when usable, otherwise every bad field and its value.

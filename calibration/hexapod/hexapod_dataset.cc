@@ -95,6 +95,8 @@ void CreateHexapodDataset(HexapodDataset* d) {
   out << YAML::Key << "model" << YAML::Value << d->camera_model;
   out << YAML::Key << "pose_hint" << YAML::Value;
   EmitPose(out, d->X_BC_hint);
+  out << YAML::Key << "edge_locator" << YAML::Value << d->edge_locator;
+  out << YAML::Key << "edge_blur_px" << YAML::Value << d->edge_blur_px;
   out << YAML::EndMap;
   out << YAML::Key << "poses" << YAML::Value << "poses.csv";
   out << YAML::EndMap;
@@ -170,6 +172,21 @@ HexapodDataset ReadHexapodDataset(const std::string& directory) {
   d.camera_model = text(camera["model"], "camera.model");
   if (!d.camera_model.empty() && d.camera_model.rfind("builtin:", 0) != 0) {
     d.camera_model = (dir / d.camera_model).string();
+  }
+  if (camera["edge_locator"]) {
+    d.edge_locator = camera["edge_locator"].as<std::string>();
+    if (d.edge_locator != "step-ramp" && d.edge_locator != "parabola") {
+      problems.push_back("camera.edge_locator: '" + d.edge_locator +
+                         "' is not step-ramp or parabola");
+    }
+  }
+  if (camera["edge_blur_px"]) {
+    try {
+      d.edge_blur_px = camera["edge_blur_px"].as<double>();
+      if (!(d.edge_blur_px >= 0 && d.edge_blur_px <= 3)) throw std::invalid_argument("range");
+    } catch (const std::exception&) {
+      problems.push_back("camera.edge_blur_px: expected a number in [0, 3] (px)");
+    }
   }
   const YAML::Node hint = camera["pose_hint"];
   try {

@@ -41,6 +41,11 @@ struct HexapodDataset {
   std::string camera_model;
   // The camera pose in B as the recording's config gave it: seeds the predictions only.
   Eigen::Isometry3d X_BC_hint = Eigen::Isometry3d::Identity();
+  // How the camera's leg edges are to be located (vision/hexapod/leg_edges.h): "step-ramp" or
+  // "parabola", and the optics' blur σ (px) the step-ramp model includes. Written from the rig's
+  // settings; absent in a file: step-ramp and 0.
+  std::string edge_locator = "step-ramp";
+  double edge_blur_px = 0.0;
   std::string source;   // what was recorded ("simulated world config/hexapod-sim.yaml", ...)
   std::string created;  // UTC, ISO 8601
   std::vector<HexapodDatasetPose> poses;

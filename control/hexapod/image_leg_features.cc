@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -30,6 +31,11 @@ std::string ImageLegFeatureOptions::Validate() const {
   std::string message = edges.Validate();
   if (p_C_A && !AllFinite(*p_C_A)) {
     message += std::string(message.empty() ? "" : "; ") + "p_C_A: not finite";
+  }
+  if (!(max_prediction_deviation >= 0) || !std::isfinite(max_prediction_deviation)) {
+    message += std::string(message.empty() ? "" : "; ") +
+               "max_prediction_deviation: must be >= 0, got " +
+               std::to_string(max_prediction_deviation);
   }
   if (grab_timeout_ms <= 0) {
     message += std::string(message.empty() ? "" : "; ") + "grab_timeout_ms: must be > 0, got " +
@@ -232,10 +238,23 @@ bool ImageLegFeatureSource::GrabAndProcess(std::chrono::milliseconds timeout, co
 
   const auto& observations = vision::hexapod::ObserveLegs(view, *camera_model_, predictions,
                                                           options_.edges, workspace_.get());
-  int not_visible = 0;
+  int not_visible = 0, rejected = 0;
+  std::array<LegObservation, kHexapodLegs> reported = observations;
   for (int j = 0; j < kHexapodLegs; ++j) {
     frame->visible[j] = observations[j].visible;
-    if (observations[j].visible) {
+    if (observations[j].visible && options_.max_prediction_deviation > 0) {
+      const Eigen::Vector3d u_pred = (predictions[j].p_C_B - predictions[j].p_C_A).normalized();
+      const double deviation = std::acos(std::clamp(u_pred.dot(observations[j].u_C), -1.0, 1.0));
+      if (deviation > options_.max_prediction_deviation) {
+        frame->visible[j] = false;
+        ++rejected;
+        reported[j].visible = false;
+        reported[j].reason = "leg " + std::to_string(j) + ": measured direction " +
+                             std::to_string(deviation) + " rad from the predicted one (gate " +
+                             std::to_string(options_.max_prediction_deviation) + " rad)";
+      }
+    }
+    if (frame->visible[j]) {
       frame->u_C[j] = observations[j].u_C;
     } else {
       ++not_visible;
@@ -245,10 +264,11 @@ bool ImageLegFeatureSource::GrabAndProcess(std::chrono::milliseconds timeout, co
   frame->sequence = ++sequence_;
   std::lock_guard<std::mutex> lock(mutex_);
   X_BP_ = X_BP;
-  observations_ = observations;
+  observations_ = reported;
   ++counters_.frames;
   if (!fk.converged()) ++counters_.fk_failures;
   counters_.legs_not_visible += not_visible;
+  counters_.legs_rejected += rejected;
   return true;
 }
 

@@ -54,6 +54,12 @@ struct ImageLegFeatureOptions {
   // Calibrated base attachment points in C (seed eq. 14's solution); when set they are the base
   // ends of the predictions instead of X_CB·p_B_A of the nominal model.
   std::optional<LegPoints> p_C_A;
+  // A leg whose measured direction is further than this (rad) from the predicted one is not used
+  // in that frame (reported not visible, counted): a gross extraction error (a frame's edge fitted
+  // to a neighbour's shading, a perspective camera's ill-conditioned eq. 11) must not jerk the
+  // platform. The prediction (nominal FK of the measured leg lengths, calibrated A_j and X_CB) is
+  // good to a few mrad; 0 = off.
+  double max_prediction_deviation = 0.03;
   // A worker thread grabs and processes the frames (see above); for a camera on a SteadyClock.
   // Must be false for a simulated camera on a stepped world's clock (it would step the world from
   // a second thread).
@@ -69,7 +75,8 @@ struct ImageLegFeatureCounters {
   uint64_t frames = 0;            // frames processed
   uint64_t camera_errors = 0;     // Grab() errors other than "no frame yet"
   uint64_t fk_failures = 0;       // frames predicted from the previous pose (FK did not converge)
-  uint64_t legs_not_visible = 0;  // sum over frames of legs not measured
+  uint64_t legs_not_visible = 0;  // sum over frames of legs not measured (rejected included)
+  uint64_t legs_rejected = 0;     // measured but too far from the prediction (gated out)
   uint64_t format_errors = 0;     // frames of the wrong size or an unsupported pixel format
 };
 

@@ -168,6 +168,28 @@ TEST(ImageLegFeatureSourceTest, OmniCameraDirectionsMatchTheTruth) {
   ExpectDirectionsMatchTheTruth("hexapod-omni", 0.01, 6);  // measured 0.0032 rad
 }
 
+// The gate against gross extraction errors: a direction further from the prediction than
+// max_prediction_deviation is not used (here a gate far below the extraction's accuracy rejects
+// every leg; off, every leg is used).
+TEST(ImageLegFeatureSourceTest, DirectionsFarFromThePredictionAreGatedOutAndNamed) {
+  World w("hexapod-omni");
+  ImageLegFeatureOptions options;
+  options.max_prediction_deviation = 1e-6;
+  auto gated = w.MakeSource(options);
+  LegFeatureFrame frame;
+  ASSERT_TRUE(gated->Poll(w.world().clock().Now(), &frame));
+  for (int j = 0; j < kHexapodLegs; ++j) EXPECT_FALSE(frame.visible[j]) << j;
+  EXPECT_EQ(gated->counters().legs_rejected, 6u);
+  EXPECT_THAT(gated->last_observations()[2].reason,
+              ::testing::ContainsRegex("leg 2: measured direction [0-9.e-]+ rad from the "
+                                       "predicted one \\(gate"));
+  w.world().Step(150ms);
+  options.max_prediction_deviation = 0;
+  auto open = w.MakeSource(options);
+  ASSERT_TRUE(open->Poll(w.world().clock().Now(), &frame));
+  for (int j = 0; j < kHexapodLegs; ++j) EXPECT_TRUE(frame.visible[j]) << j;
+}
+
 TEST(ImageLegFeatureSourceTest, PollsAFrameOnlyWhenTheCameraHasOneDue) {
   World w("hexapod-omni");
   auto source = w.MakeSource();
