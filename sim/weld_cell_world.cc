@@ -62,6 +62,14 @@ Eigen::Isometry3d DefaultWorkpiecePose() {
   return Pose(Eigen::Vector3d(0.70, 0.045, 0.294), Eigen::Vector3d(0.0, -90.0, 0.0));
 }
 
+vision::render::LaserSceneParameters DefaultCalibrationBoard(bool gauge_block) {
+  vision::render::LaserSceneParameters p;
+  p.surface = vision::render::LaserSurfaceKind::kBoard;
+  p.half_extent = Eigen::Vector2d(0.15, 0.10);
+  p.gauge_block = gauge_block;
+  return p;
+}
+
 vision::render::LaserSceneParameters DefaultBlade() {
   vision::render::LaserSceneParameters p;
   p.surface = vision::render::LaserSurfaceKind::kBlade;
@@ -246,10 +254,7 @@ WeldCellWorldConfig LoadWeldCellWorldConfig(const std::string& path) {
   const std::string kind = r.Text("workpiece.kind", "blade");
   if (kind == "board") {
     // A board starts from the board defaults, not the blade's shape.
-    w = vision::render::LaserSceneParameters();
-    w.surface = vision::render::LaserSurfaceKind::kBoard;
-    w.half_extent = Eigen::Vector2d(0.15, 0.10);
-    w.gauge_block = true;
+    w = DefaultCalibrationBoard(/*gauge_block=*/true);
   } else if (kind != "blade") {
     r.Problem("workpiece.kind: expected blade or board, got '" + kind + "'");
   }
@@ -329,7 +334,9 @@ WeldCellWorld::WeldCellWorld(WeldCellWorldConfig config, Timing timing)
       true_(TrueWeld5Model(config_)),
       clock_(timing == Timing::kStepped ? static_cast<hal::Clock*>(&sim_time_)
                                         : &hal::SteadyClock::Instance()),
-      cot_theta_y_(config_.cot_theta_y) {
+      cot_theta_y_(config_.cot_theta_y),
+      fixed_on_(config_.fixed_laser_on),
+      rotating_on_(config_.rotating_laser_on) {
   const std::string invalid = config_.Validate();
   if (!invalid.empty()) throw std::invalid_argument("weld-cell world: " + invalid);
   camera_ = vision::OpenCameraModel(config_.scanner_camera);
@@ -401,6 +408,12 @@ void WeldCellWorld::SetLaserAngle(double cot_theta_y) {
   cot_theta_y_ = cot_theta_y;
 }
 
+void WeldCellWorld::SetLasers(bool fixed_on, bool rotating_on) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  fixed_on_ = fixed_on;
+  rotating_on_ = rotating_on;
+}
+
 double WeldCellWorld::laser_angle() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return cot_theta_y_;
@@ -410,9 +423,12 @@ std::unique_ptr<vision::render::LaserScene> WeldCellWorld::SceneAt(
     const std::array<double, robots::kWeld5Joints>& q) const {
   vision::render::LaserSceneParameters p = config_.workpiece;
   p.scanner = config_.scanner;
-  p.rotating_cot_theta_y = laser_angle();
-  p.fixed_on = config_.fixed_laser_on;
-  p.rotating_on = config_.rotating_laser_on;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    p.rotating_cot_theta_y = cot_theta_y_;
+    p.fixed_on = fixed_on_;
+    p.rotating_on = rotating_on_;
+  }
   // X_CS = X_0C⁻¹ · X_0S with the true robot and mount.
   p.X_CS = TrueScannerPose(q).inverse() * config_.X_0S;
   return std::make_unique<vision::render::LaserScene>(p);

@@ -83,6 +83,10 @@ Eigen::Isometry3d DefaultWorkpiecePose();
 // The default blade: 200 × 160 mm, curvatures (1.5, 0.5, 0.3) 1/m, three cavitation pits of
 // 0.6–1.2 mm depth and 2–4 mm width near the centre.
 vision::render::LaserSceneParameters DefaultBlade();
+// The flat calibration board (300 x 200 mm), with the seed's gauge block (100 x 50 x 10 mm) at its
+// centre when `gauge_block`: what scanner and mount calibration look at. Its pose: the
+// workpiece's default, DefaultWorkpiecePose().
+vision::render::LaserSceneParameters DefaultCalibrationBoard(bool gauge_block);
 
 struct WeldCellWorldConfig {
   // The nominal robot (what the host loads) and where it came from (for messages; empty:
@@ -186,6 +190,9 @@ class WeldCellWorld {
   // The rotating laser's angle as cot θ_y (finite; std::invalid_argument otherwise).
   void SetLaserAngle(double cot_theta_y);
   double laser_angle() const;
+  // Switches the lasers (the scanner's own controls; initially the config's fixed_laser_on and
+  // rotating_laser_on).
+  void SetLasers(bool fixed_on, bool rotating_on);
 
   // The laser scene the scanner sees at joints q (its X_CS from the true robot and mount).
   std::unique_ptr<vision::render::LaserScene> SceneAt(
@@ -221,6 +228,8 @@ class WeldCellWorld {
 
   mutable std::mutex mutex_;  // laser settings, scan log
   double cot_theta_y_;
+  bool fixed_on_ = true;
+  bool rotating_on_ = true;
   std::deque<ScanRecord> scan_log_;
 
   std::mutex render_mutex_;  // the renderer's scratch
