@@ -67,6 +67,12 @@ vision::render::LaserSceneParameters DefaultCalibrationBoard(bool gauge_block) {
   p.surface = vision::render::LaserSurfaceKind::kBoard;
   p.half_extent = Eigen::Vector2d(0.15, 0.10);
   p.gauge_block = gauge_block;
+  if (!gauge_block) {
+    // The scanner calibration board: the seed's 9 x 9 dots at 26.5 mm (212 mm across) need a
+    // taller board.
+    p.half_extent = Eigen::Vector2d(0.15, 0.13);
+    p.dot_grid = true;  // the seed's DotGrid defaults
+  }
   return p;
 }
 

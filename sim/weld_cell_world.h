@@ -83,9 +83,10 @@ Eigen::Isometry3d DefaultWorkpiecePose();
 // The default blade: 200 × 160 mm, curvatures (1.5, 0.5, 0.3) 1/m, three cavitation pits of
 // 0.6–1.2 mm depth and 2–4 mm width near the centre.
 vision::render::LaserSceneParameters DefaultBlade();
-// The flat calibration board (300 x 200 mm), with the seed's gauge block (100 x 50 x 10 mm) at its
-// centre when `gauge_block`: what scanner and mount calibration look at. Its pose: the
-// workpiece's default, DefaultWorkpiecePose().
+// The flat calibration boards, posed like the workpiece (DefaultWorkpiecePose()): with
+// `gauge_block`, 300 x 200 mm with the seed's gauge block (100 x 50 x 10 mm) at its centre (mount
+// calibration); without, 300 x 260 mm with the seed's 9 x 9 dot grid at 26.5 mm (scanner
+// calibration).
 vision::render::LaserSceneParameters DefaultCalibrationBoard(bool gauge_block);
 
 struct WeldCellWorldConfig {

@@ -499,10 +499,83 @@ TEST(LaserScene, BadParametersAreNamedInOneMessage) {
   EXPECT_EQ(LaserSceneParameters().Validate(), "");
 }
 
+// Issue 7's calibration board: the seed's 9 × 9 dots at 26.5 mm darken the board (and the laser
+// light) by their albedo, inside their radius only; the rendered dots are anti-aliased (edge pixels
+// take intermediate grey levels) and their darkness centroids are the projected discs' centroids.
+TEST(LaserScene, DotGridDarkensTheBoardInsideTheDots) {
+  LaserSceneParameters p;
+  p.surface = LaserSurfaceKind::kBoard;
+  p.half_extent = Eigen::Vector2d(0.15, 0.15);
+  p.dot_grid = true;
+  p.ambient = 0.6;
+  p.rotating_on = false;
+  p.fixed_on = false;
+  p.X_CS = Eigen::Translation3d(0.0, 0.0, 0.5) * Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX());
+  const LaserScene scene(p);
+  LaserSceneParameters plain_parameters = p;
+  plain_parameters.dot_grid = false;
+  const LaserScene plain(plain_parameters);
+  const DotGrid& dots = p.dots;
+  EXPECT_NEAR(dots.DotCentre_S(8, 8).x(), 4 * 0.0265, 1e-15);
+  EXPECT_NEAR(dots.DotCentre_S(0, 0).y(), -4 * 0.0265, 1e-15);
+  auto radiance_at = [&](const Eigen::Vector2d& p_S) {
+    Ray ray;
+    ray.d_C = (p.X_CS * Eigen::Vector3d(p_S.x(), p_S.y(), 0.0)).normalized();
+    const LaserHit hit = scene.TraceDetailed(ray);
+    EXPECT_EQ(hit.hit.object, kLaserSurface);
+    // Relative to the same ray on the board without dots (the shading varies with the angle).
+    return std::make_pair(hit.hit.radiance / plain.Trace(ray).radiance, hit.reflectance);
+  };
+  const auto [board_ratio, board_reflectance] = radiance_at(Eigen::Vector2d(0.013, 0.013));
+  EXPECT_EQ(board_reflectance, 1.0);
+  EXPECT_EQ(board_ratio, 1.0);
+  for (const Eigen::Vector2d& offset :
+       {Eigen::Vector2d(0.0, 0.0), Eigen::Vector2d(0.0049, 0.0), Eigen::Vector2d(0.0, -0.0049)}) {
+    const auto [r, reflectance] = radiance_at(dots.DotCentre_S(3, 5) + offset);
+    EXPECT_EQ(reflectance, dots.albedo);
+    EXPECT_NEAR(r, dots.albedo, 1e-15);
+  }
+  EXPECT_EQ(radiance_at(dots.DotCentre_S(3, 5) + Eigen::Vector2d(0.0051, 0.0)).second, 1.0);
+  // Rendered: the dot at the grid's centre, its darkness centroid on its centre's image.
+  const auto camera = ScannerCamera();
+  Renderer renderer(*camera, RenderOptions{});
+  std::vector<uint8_t> image(static_cast<size_t>(camera->width()) * camera->height());
+  renderer.Render(scene, 0,
+                  ImageView8{image.data(), camera->width(), camera->height(),
+                             static_cast<size_t>(camera->width())});
+  Eigen::Vector2d centre;
+  ASSERT_EQ(camera->Project(p.X_CS * Eigen::Vector3d::Zero(), &centre), ProjectionStatus::kOk);
+  const int level = image[static_cast<size_t>(centre.y() + 40) * camera->width() + centre.x()];
+  double sum = 0.0;
+  Eigen::Vector2d first = Eigen::Vector2d::Zero();
+  int intermediate = 0;
+  for (int v = static_cast<int>(centre.y()) - 30; v <= centre.y() + 30; ++v) {
+    for (int u = static_cast<int>(centre.x()) - 30; u <= centre.x() + 30; ++u) {
+      const int g = image[static_cast<size_t>(v) * camera->width() + u];
+      sum += std::max(0, level - g);
+      first += std::max(0, level - g) * Eigen::Vector2d(u, v);
+      intermediate += g > 0.25 * level && g < 0.75 * level;
+    }
+  }
+  EXPECT_LT((first / sum - centre).norm(), 0.02);
+  EXPECT_GT(intermediate, 40);  // anti-aliased rim (≈ 2π · 21 px)
+  // The grid must fit the board, and only the board has one.
+  LaserSceneParameters small = p;
+  small.half_extent = Eigen::Vector2d(0.1, 0.15);
+  EXPECT_THAT(small.Validate(), ::testing::ContainsRegex("dots \\(x reach\\) = 0.111"));
+  LaserSceneParameters blade = p;
+  blade.surface = LaserSurfaceKind::kBlade;
+  EXPECT_THAT(blade.Validate(), ::testing::ContainsRegex("dot_grid = 1 \\(only on the board"));
+  LaserSceneParameters bad = p;
+  bad.dots.dot_radius = 0.02;
+  EXPECT_THAT(bad.Validate(), ::testing::ContainsRegex("dots.dot_radius = 0.02"));
+}
+
 // TraceBatch (issue 5's two-rays-at-a-time path) gives exactly Trace()'s hits, bit for bit: every
 // third pixel-centre ray of the scanner camera row by row (shared origin), and random rays from
 // random origins (one origin per ray), on the blade with pits (the fast path, with its fall-backs),
-// a flat blade and the board with the gauge block (Trace() throughout).
+// a flat blade, the board with the gauge block and the board with the dot grid (Trace()
+// throughout).
 TEST(LaserScene, TraceBatchEqualsTraceBitForBit) {
   const std::unique_ptr<CameraModel> camera = ScannerCamera();
   LaserSceneParameters pitted;
@@ -515,9 +588,13 @@ TEST(LaserScene, TraceBatchEqualsTraceBitForBit) {
   board.surface = LaserSurfaceKind::kBoard;
   board.gauge_block = true;
   board.gauge_centre_S = Eigen::Vector2d(0.01, -0.005);
+  LaserSceneParameters dotted = board;  // issue 7's calibration board: the dot grid
+  dotted.gauge_block = false;
+  dotted.dot_grid = true;
+  dotted.half_extent = Eigen::Vector2d(0.15, 0.15);
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> unit(-1.0, 1.0);
-  for (const LaserSceneParameters& p : {pitted, flat, board}) {
+  for (const LaserSceneParameters& p : {pitted, flat, board, dotted}) {
     const LaserScene scene(p);
     int compared = 0, lit = 0, surface = 0, different = 0;
     auto compare = [&](const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Hit& batch) {

@@ -97,6 +97,31 @@ std::string LaserScannerGeometry::Validate() const {
   return bad.str();
 }
 
+double DotGrid::Reflectance(double x_S, double y_S) const {
+  // The nearest dot centre (the grid is regular): its column and row, clamped to the grid.
+  const double u = (x_S - centre_S.x()) / pitch + 0.5 * (cols - 1);
+  const double v = (y_S - centre_S.y()) / pitch + 0.5 * (rows - 1);
+  const double col = std::clamp(std::round(u), 0.0, static_cast<double>(cols - 1));
+  const double row = std::clamp(std::round(v), 0.0, static_cast<double>(rows - 1));
+  const double dx = (u - col) * pitch, dy = (v - row) * pitch;
+  return dx * dx + dy * dy <= dot_radius * dot_radius ? albedo : 1.0;
+}
+
+std::string DotGrid::Validate(const std::string& prefix) const {
+  Problems bad;
+  if (!(rows >= 2 && rows <= 100)) bad.Add(prefix + "rows", rows, "in [2, 100]");
+  if (!(cols >= 2 && cols <= 100)) bad.Add(prefix + "cols", cols, "in [2, 100]");
+  if (!(std::isfinite(pitch) && pitch > 0.0)) bad.Add(prefix + "pitch", pitch, "> 0 m");
+  if (!(std::isfinite(dot_radius) && dot_radius > 0.0 && dot_radius < 0.5 * pitch)) {
+    bad.Add(prefix + "dot_radius", dot_radius, "in (0, pitch / 2) m");
+  }
+  if (!(std::isfinite(albedo) && albedo >= 0.0 && albedo < 1.0)) {
+    bad.Add(prefix + "albedo", albedo, "in [0, 1)");
+  }
+  if (!centre_S.allFinite()) bad.Add(prefix + "centre_S", centre_S.x(), "finite");
+  return bad.str();
+}
+
 bool LaserHit::Lit(LaserId id) const {
   const int i = static_cast<int>(id);
   return hit.object != kLaserBackground && reached[i] &&
@@ -136,6 +161,27 @@ std::string LaserSceneParameters::Validate() const {
   if (!std::isfinite(gauge_heading)) bad.Add("gauge_heading", gauge_heading, "finite");
   if (!(gauge_size.allFinite() && gauge_size.minCoeff() > 0.0)) {
     bad.Add("gauge_size", gauge_size.minCoeff(), "all > 0");
+  }
+  if (dot_grid) {
+    const std::string grid = dots.Validate();
+    if (!grid.empty()) {
+      message += (message.empty() ? "" : "; ") + grid;
+    } else {
+      // The outermost dots' edges, in S.
+      const double x_reach =
+          std::abs(dots.centre_S.x()) + 0.5 * (dots.cols - 1) * dots.pitch + dots.dot_radius;
+      const double y_reach =
+          std::abs(dots.centre_S.y()) + 0.5 * (dots.rows - 1) * dots.pitch + dots.dot_radius;
+      if (!(x_reach <= half_extent.x())) {
+        bad.Add("dots (x reach)", x_reach, "the grid must fit the board: <= half_extent.x");
+      }
+      if (!(y_reach <= half_extent.y())) {
+        bad.Add("dots (y reach)", y_reach, "the grid must fit the board: <= half_extent.y");
+      }
+    }
+    if (surface != LaserSurfaceKind::kBoard) {
+      bad.Add("dot_grid", 1, "only on the board (surface kBoard)");
+    }
   }
   if (!InUnit(ambient)) bad.Add("ambient", ambient, "in [0, 1]");
   if (!InUnit(background)) bad.Add("background", background, "in [0, 1]");
@@ -516,6 +562,11 @@ LaserHit LaserScene::TraceDetailed(const Ray& ray_C) const {
     }
     out.reached[i] = !Shadowed(out.p_C, planes_[i]);
     if (out.reached[i]) radiance += parameters_.laser_peak * std::exp(-d2 * inverse_two_sigma2);
+  }
+  if (parameters_.dot_grid && object == kLaserSurface) {
+    const Eigen::Vector3d p_S = X_SC_ * out.p_C;
+    out.reflectance = parameters_.dots.Reflectance(p_S.x(), p_S.y());
+    radiance *= out.reflectance;
   }
   out.hit.radiance = std::min(radiance, 1.0);
   return out;

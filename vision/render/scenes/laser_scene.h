@@ -28,7 +28,13 @@
 //           a gently curved sheet (curvatures k in 1/m, ~1/0.5 m for a turbine blade) with Gaussian
 //           cavitation pits of depth h_k (m) and width σ_k (m) centred at c_k.
 //   kBoard  the flat calibration board z_S = 0 over the same extent, optionally with the seed's
-//           gauge block (100 × 50 × 10 mm, §5.2) standing on it.
+//           gauge block (100 × 50 × 10 mm, §5.2) standing on it, and optionally with the seed's
+//           dot grid printed on it (§5.1, Fig. 14: 9 × 9 dots 26.5 mm apart; DotGrid): dark
+//           discs whose reflectance is `albedo` times the board's, for the board pose of issue 7
+//           (calibration/laser_scanner/board_pose.h). The dots darken the laser light too (the
+//           whole radiance is multiplied by the albedo), as on paper. They are edges of radiance,
+//           not objects: the renderer supersamples them through its radiance-step test, so they
+//           are anti-aliased like every other edge; hit.object stays kLaserSurface.
 // Radiance: ambient · (0.3 + 0.7 |cos|) (a matte grey surface lit from the scanner; cos between the
 //   ray and the normal) + Σ lasers laser_peak · exp(−dist² / (2 σ²)), dist = distance of the hit
 //   point from the laser plane, σ = stripe_sigma (half the stripe's width; 0.3 mm by default);
@@ -87,6 +93,27 @@ struct CavitationPit {
   double sigma = 2e-3;                                 // Gaussian width σ (m), > 0
 };
 
+// The calibration board's dot grid (seed 004 §5.1, Fig. 14), in the board frame S (z_S = 0):
+// dot (row, col) is centred at centre_S + ((col − (cols − 1)/2) pitch, (row − (rows − 1)/2) pitch),
+// so columns run along x_S and rows along y_S. A square grid looks the same after a quarter turn
+// about z_S: calibration/laser_scanner/board_pose.h says how it picks one of the four poses.
+struct DotGrid {
+  int rows = 9;               // >= 2
+  int cols = 9;               // >= 2
+  double pitch = 0.0265;      // centre-to-centre distance (m), > 0
+  double dot_radius = 0.005;  // (m), in (0, pitch / 2)
+  double albedo = 0.15;       // a dot's reflectance relative to the board, [0, 1)
+  Eigen::Vector2d centre_S = Eigen::Vector2d::Zero();  // grid centre on the board (m)
+
+  Eigen::Vector2d DotCentre_S(int row, int col) const {
+    return centre_S + pitch * Eigen::Vector2d(col - 0.5 * (cols - 1), row - 0.5 * (rows - 1));
+  }
+  // The reflectance factor at (x_S, y_S): albedo inside a dot, 1 elsewhere.
+  double Reflectance(double x_S, double y_S) const;
+  // Empty when usable, otherwise every bad field (prefixed by `prefix`) and its value.
+  std::string Validate(const std::string& prefix = "dots.") const;
+};
+
 struct LaserSceneParameters {
   LaserScannerGeometry scanner;
   double rotating_cot_theta_y = 0.25;  // the rotating laser's angle, as cot θ_y; finite
@@ -105,6 +132,10 @@ struct LaserSceneParameters {
   Eigen::Vector2d gauge_centre_S = Eigen::Vector2d::Zero();  // block centre on the board (m)
   double gauge_heading = 0.0;  // rotation of its 100 mm side from x_S about z_S (rad)
   Eigen::Vector3d gauge_size = Eigen::Vector3d(0.100, 0.050, 0.010);  // (m), > 0
+  // Board only: print the dot grid `dots` on it; the grid (dots and their radius) must lie
+  // inside the board's extent.
+  bool dot_grid = false;
+  DotGrid dots;
 
   double ambient = 0.08;         // radiance of the unlit surface (facing the ray), [0, 1]
   double background = 0.0;       // radiance where nothing is hit, [0, 1]
@@ -128,6 +159,7 @@ struct LaserHit {
   // Lit by laser i: reached and within 3 σ of its plane.
   bool Lit(LaserId id) const;
   double stripe_sigma = 0.0;
+  double reflectance = 1.0;  // the dot grid's factor at the hit point (1 off the dots)
 };
 
 class LaserScene final : public Scene {
