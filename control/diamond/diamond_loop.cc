@@ -1,0 +1,488 @@
+#include "control/diamond/diamond_loop.h"
+
+#include <spdlog/spdlog.h>
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+
+#include "hal/common/error.h"
+#include "hal/drive/cia402_can_drive.h"
+
+namespace kinevis::control {
+namespace {
+
+using robots::kDiamondJoints;
+
+hal::Duration Seconds(double s) {
+  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
+}
+double ToSeconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
+
+// Order statistic at fraction f of a sorted vector (nearest rank).
+double Quantile(const std::vector<double>& sorted, double f) {
+  if (sorted.empty()) return 0.0;
+  const size_t k = std::min(
+      sorted.size() - 1,
+      static_cast<size_t>(std::ceil(f * static_cast<double>(sorted.size()))) - (f > 0 ? 1 : 0));
+  return sorted[k];
+}
+
+// Largest |w_i · u − cos β| of a forward kinematics result: zero when both limbs close on the
+// tool axis, i.e. the tool point is on the sphere of the RCM through a real assembly.
+double ClosureResidual(const robots::DiamondModel& model, const robots::DiamondData& data) {
+  double r = 0.0;
+  for (int i = 0; i < kDiamondJoints; ++i) {
+    r = std::max(r, std::abs(data.w_O[i].dot(data.u_O) - std::cos(model.beta)));
+  }
+  return r;
+}
+
+constexpr double kClosureTolerance = 1e-9;
+
+}  // namespace
+
+std::string DiamondLoopOptions::Validate() const {
+  std::ostringstream out;
+  const auto bad = [&](const char* field, double value, const char* rule) {
+    out << (out.tellp() > 0 ? "; " : "") << field << " = " << value << " (" << rule << ")";
+  };
+  if (!(cycle_period_s > 0 && cycle_period_s <= 0.1)) {
+    bad("cycle_period_s", cycle_period_s, "must be in (0, 0.1] s");
+  }
+  if (!(max_joint_velocity > 0)) bad("max_joint_velocity", max_joint_velocity, "must be > 0");
+  if (!(max_joint_acceleration > 0)) {
+    bad("max_joint_acceleration", max_joint_acceleration, "must be > 0");
+  }
+  if (!(stop_deceleration > 0)) bad("stop_deceleration", stop_deceleration, "must be > 0");
+  if (!(theta_margin >= 0)) bad("theta_margin", theta_margin, "must be >= 0");
+  if (!(separation_margin >= 0)) bad("separation_margin", separation_margin, "must be >= 0");
+  if (max_consecutive_cycle_timeouts < 0) {
+    bad("max_consecutive_cycle_timeouts", max_consecutive_cycle_timeouts, "must be >= 0");
+  }
+  if (!(timeout_s > 0)) bad("timeout_s", timeout_s, "must be > 0");
+  return out.str();
+}
+
+const char* ToString(DiamondLoopOutcome outcome) {
+  switch (outcome) {
+    case DiamondLoopOutcome::kCompleted:
+      return "completed";
+    case DiamondLoopOutcome::kDriveFault:
+      return "drive fault";
+    case DiamondLoopOutcome::kLawStop:
+      return "stopped by the law";
+    case DiamondLoopOutcome::kLimit:
+      return "limit";
+    case DiamondLoopOutcome::kTimeout:
+      return "timeout";
+    case DiamondLoopOutcome::kNotStarted:
+      return "not started";
+  }
+  return "?";
+}
+
+std::string PeriodStatistics::Describe() const {
+  char text[512];
+  std::snprintf(text, sizeof text,
+                "target %.1f us, %llu periods: mean %.1f us (%.1f Hz), std %.1f us, min %.1f, "
+                "p50 %.1f, p99 %.1f, max %.1f us; max lateness %.1f us, %llu late > 10%%, %llu "
+                "missed; I/O mean %.1f p99 %.1f max %.1f us; compute mean %.2f p99 %.2f max "
+                "%.2f us",
+                target_s * 1e6, static_cast<unsigned long long>(periods), mean_s * 1e6, rate_hz(),
+                std_s * 1e6, min_s * 1e6, p50_s * 1e6, p99_s * 1e6, max_s * 1e6,
+                max_lateness_s * 1e6, static_cast<unsigned long long>(late_cycles),
+                static_cast<unsigned long long>(missed_deadlines), io_mean_s * 1e6, io_p99_s * 1e6,
+                io_max_s * 1e6, compute_mean_s * 1e6, compute_p99_s * 1e6, compute_max_s * 1e6);
+  return text;
+}
+
+PeriodStatistics ComputePeriodStatistics(double target_s, std::vector<double> periods,
+                                         std::vector<double> lateness, std::vector<double> io,
+                                         std::vector<double> compute, uint64_t missed_deadlines) {
+  PeriodStatistics s;
+  s.target_s = target_s;
+  s.missed_deadlines = missed_deadlines;
+  s.periods = periods.size();
+  if (!periods.empty()) {
+    double sum = 0.0;
+    for (double p : periods) sum += p;
+    s.mean_s = sum / periods.size();
+    double var = 0.0;
+    for (double p : periods) var += (p - s.mean_s) * (p - s.mean_s);
+    s.std_s = periods.size() > 1 ? std::sqrt(var / (periods.size() - 1)) : 0.0;
+    std::sort(periods.begin(), periods.end());
+    s.min_s = periods.front();
+    s.max_s = periods.back();
+    s.p50_s = Quantile(periods, 0.5);
+    s.p99_s = Quantile(periods, 0.99);
+  }
+  for (double l : lateness) {
+    s.max_lateness_s = std::max(s.max_lateness_s, l);
+    if (l > 0.1 * target_s) ++s.late_cycles;
+  }
+  const auto summarize = [](std::vector<double>& v, double* mean, double* p99, double* max) {
+    if (v.empty()) return;
+    double sum = 0.0;
+    for (double x : v) sum += x;
+    *mean = sum / v.size();
+    std::sort(v.begin(), v.end());
+    *p99 = Quantile(v, 0.99);
+    *max = v.back();
+  };
+  summarize(io, &s.io_mean_s, &s.io_p99_s, &s.io_max_s);
+  summarize(compute, &s.compute_mean_s, &s.compute_p99_s, &s.compute_max_s);
+  return s;
+}
+
+double Straightness(const std::vector<Eigen::Vector2d>& points) {
+  if (points.size() < 3) return 0.0;
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const auto& p : points) mean += p;
+  mean /= static_cast<double>(points.size());
+  Eigen::Matrix2d cov = Eigen::Matrix2d::Zero();
+  for (const auto& p : points) cov += (p - mean) * (p - mean).transpose();
+  cov /= static_cast<double>(points.size());
+  // The total least-squares line runs along the largest eigenvector; the mean squared distance
+  // from it is the smallest eigenvalue.
+  const double lambda_min = Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(cov).eigenvalues()[0];
+  return std::sqrt(std::max(0.0, lambda_min));
+}
+
+DiamondControlLoop::DiamondControlLoop(hal::DriveBus* bus, hal::Clock* clock,
+                                       const robots::DiamondModel& model,
+                                       DiamondLoopOptions options)
+    : bus_(bus), clock_(clock), model_(model), options_(options) {
+  std::string message = options.Validate();
+  const auto add = [&](const std::string& text) {
+    message += (message.empty() ? "" : "; ") + text;
+  };
+  if (!bus || !clock) add("bus and clock must not be null");
+  if (bus) {
+    drives_ = bus->drives();
+    if (drives_.size() != static_cast<size_t>(kDiamondJoints)) {
+      add("bus " + bus->name() + ": has " + std::to_string(drives_.size()) + " drives, expected 2");
+    }
+  }
+  if (const std::string m = model.Validate(); !m.empty()) add("model: " + m);
+  if (!message.empty()) throw std::invalid_argument("DiamondControlLoop: " + message);
+}
+
+bool DiamondControlLoop::SetCommand(const Eigen::Vector2d& q_command) {
+  bool ok = true;
+  for (int i = 0; i < kDiamondJoints; ++i) {
+    // A refusal (not active) shows as a fault at the next Cycle().
+    ok = !drives_[i]->SetTargetPosition(q_command[i]) && ok;
+  }
+  return ok;
+}
+
+std::string DiamondControlLoop::CheckLimits(const Eigen::Vector2d& q,
+                                            robots::DiamondData* data) const {
+  const robots::DiamondReachability reach = robots::ForwardKinematics(model_, q, data);
+  std::ostringstream out;
+  if (!reach.ok()) out << reach.Describe();
+  const auto add = [&](const std::string& text) { out << (out.tellp() > 0 ? "; " : "") << text; };
+  char text[160];
+  for (int i = 0; i < kDiamondJoints; ++i) {
+    const double theta = q[i] + model_.joint_offsets[i];
+    const double lo = model_.theta_min[i] + options_.theta_margin;
+    const double hi = model_.theta_max[i] - options_.theta_margin;
+    if (theta < lo || theta > hi) {
+      std::snprintf(text, sizeof text, "theta_%d = %.6g rad outside [%.6g, %.6g] (limits less %g)",
+                    i + 1, theta, lo, hi, options_.theta_margin);
+      add(text);
+    }
+  }
+  const double separation = (q[0] + model_.joint_offsets[0]) - (q[1] + model_.joint_offsets[1]);
+  const double lo = model_.separation_min + options_.separation_margin;
+  const double hi = model_.separation_max - options_.separation_margin;
+  if (separation < lo || separation > hi) {
+    std::snprintf(text, sizeof text,
+                  "limb separation theta_1 - theta_2 = %.6g rad outside [%.6g, %.6g]", separation,
+                  lo, hi);
+    add(text);
+  }
+  return out.str();
+}
+
+std::string DiamondControlLoop::DriveFaults(DiamondLoopReport* report) const {
+  std::ostringstream out;
+  for (int i = 0; i < kDiamondJoints; ++i) {
+    const hal::DriveStatus st = drives_[i]->status();
+    if (drives_[i]->lifecycle() != hal::DeviceLifecycle::kFault &&
+        st.fault_source == hal::DriveFaultSource::kNone) {
+      continue;
+    }
+    if (report->faulted_drive < 0) report->faulted_drive = i;
+    out << (out.tellp() > 0 ? "; " : "") << "joint " << i + 1 << " drive " << drives_[i]->name()
+        << ": " << (st.fault_source == hal::DriveFaultSource::kLink ? "link lost" : "device fault")
+        << ", error code 0x" << std::hex << st.error_code << std::dec;
+    if (const auto* host = dynamic_cast<const hal::Cia402HostDrive*>(drives_[i])) {
+      if (!host->last_error_text().empty()) out << " (" << host->last_error_text() << ")";
+    }
+  }
+  return out.str();
+}
+
+void DiamondControlLoop::HoldAndSettle(Eigen::Vector2d* q_command) {
+  // Brakes the commanded motion at stop_deceleration (the stopping distance the limit check
+  // allowed for), then holds the set-point for a few cycles so that the drives arrive.
+  const double dt = options_.cycle_period_s;
+  const hal::Duration period = Seconds(dt);
+  hal::Duration next = clock_->Now();
+  Eigen::Vector2d v = Eigen::Vector2d::Zero();
+  for (int i = 0; i < kDiamondJoints; ++i) v[i] = drives_[i]->status().velocity;
+  const int max_cycles = static_cast<int>(1.0 / dt) + 1;
+  int still = 0;
+  for (int k = 0; k < max_cycles && still < 10; ++k) {
+    const double speed = v.cwiseAbs().maxCoeff();
+    if (speed > 0) v *= std::max(0.0, speed - options_.stop_deceleration * dt) / speed;
+    *q_command += v * dt;
+    SetCommand(*q_command);
+    next += period;
+    clock_->SleepUntil(next);
+    if (bus_->Cycle()) return;
+    still = v.isZero() ? still + 1 : 0;
+  }
+}
+
+void DiamondControlLoop::SafeState(DiamondLoopReport* report) {
+  for (hal::MotorDrive* d : drives_) {
+    std::error_code ec;
+    if (options_.stop_action == DiamondStopAction::kDisable) {
+      if (d->lifecycle() != hal::DeviceLifecycle::kFault &&
+          d->lifecycle() != hal::DeviceLifecycle::kUnconfigured) {
+        ec = d->Disable();
+      }
+    } else if (d->lifecycle() == hal::DeviceLifecycle::kActive) {
+      ec = d->QuickStop();
+    }
+    if (ec) {
+      spdlog::warn("diamond loop: bringing {} to the safe state failed: {}", d->name(),
+                   ec.message());
+      report->message += "; " + d->name() + ": safe state not confirmed (" + ec.message() + ")";
+    }
+  }
+  // Keep cycling until both joints are at rest (at most 1 s): a drive receives its controlword
+  // only with the cycles.
+  const hal::Duration period = Seconds(options_.cycle_period_s);
+  const hal::Duration end = clock_->Now() + Seconds(1.0);
+  for (hal::Duration next = clock_->Now() + period; clock_->Now() < end; next += period) {
+    clock_->SleepUntil(next);
+    bus_->Cycle();
+    bool still = true;
+    for (hal::MotorDrive* d : drives_) still = still && std::abs(d->status().velocity) < 1e-6;
+    if (still) break;
+  }
+}
+
+DiamondLoopReport DiamondControlLoop::Run(
+    DiamondLaw* law, const std::function<void(const DiamondLoopSample&)>& observer) {
+  DiamondLoopReport report;
+  if (law == nullptr) {
+    report.message = "no law";
+    return report;
+  }
+  const double dt = options_.cycle_period_s;
+  const hal::Duration period = Seconds(dt);
+  const size_t capacity = static_cast<size_t>(options_.timeout_s / dt) + 16;
+  if (options_.keep_samples) report.samples.reserve(capacity);
+  std::vector<double> periods, lateness, io, compute;
+  periods.reserve(capacity);
+  lateness.reserve(capacity);
+  io.reserve(capacity);
+  compute.reserve(capacity);
+  const auto record = [&capacity](std::vector<double>* v, double x) {
+    if (v->size() < capacity) v->push_back(x);
+  };
+
+  Eigen::Vector2d q_command;
+  for (int i = 0; i < kDiamondJoints; ++i) {
+    q_command[i] = drives_[i]->status().position;
+    drives_[i]->SetTargetPosition(q_command[i]);
+    if (const std::error_code ec =
+            drives_[i]->SetMode(hal::DriveMode::kCyclicSynchronousPosition)) {
+      report.outcome = DiamondLoopOutcome::kNotStarted;
+      report.faulted_drive = i;
+      report.message = "joint " + std::to_string(i + 1) + " drive " + drives_[i]->name() +
+                       ": cannot select cyclic synchronous position: " + ec.message();
+      return report;
+    }
+  }
+
+  const hal::Duration start = clock_->Now();
+  law->Start(q_command, start);
+  hal::Duration next = start;
+  hal::Duration previous_wake{0};
+  bool woke_before = false;
+  uint64_t missed = 0;
+  int consecutive_timeouts = 0;
+  Eigen::Vector2d q_dot_previous = Eigen::Vector2d::Zero();
+  robots::DiamondData data;
+  DiamondLoopSample sample;
+
+  const auto finish = [&](DiamondLoopOutcome outcome, const std::string& message) {
+    report.outcome = outcome;
+    report.message = message;
+  };
+
+  for (;;) {
+    next += period;
+    clock_->SleepUntil(next);
+    const hal::Duration now = clock_->Now();
+    const double late = ToSeconds(now - next);
+    if (late > dt) {  // woke more than a period late: re-synchronise the grid
+      missed += static_cast<uint64_t>(late / dt);
+      next = now;
+    }
+    sample.time_s = ToSeconds(now - start);
+    sample.period_s = woke_before ? ToSeconds(now - previous_wake) : 0.0;
+    sample.lateness_s = std::max(0.0, late);
+    if (woke_before) record(&periods, sample.period_s);
+    record(&lateness, sample.lateness_s);
+    previous_wake = now;
+    woke_before = true;
+    ++report.cycles;
+
+    // 1. The bus.
+    const std::error_code cycle_error = bus_->Cycle();
+    const hal::Duration io_end = clock_->Now();
+    sample.io_s = ToSeconds(io_end - now);
+    record(&io, sample.io_s);
+    bool faulted = false;
+    if (cycle_error == hal::Errc::kTimeout) {
+      ++report.cycle_timeouts;
+      faulted = ++consecutive_timeouts > options_.max_consecutive_cycle_timeouts;
+    } else {
+      consecutive_timeouts = 0;
+      faulted = static_cast<bool>(cycle_error);
+    }
+    for (hal::MotorDrive* d : drives_) {
+      faulted = faulted || d->lifecycle() == hal::DeviceLifecycle::kFault;
+    }
+    if (faulted) {
+      std::ostringstream m;
+      m << "drive fault at t = " << sample.time_s << " s (bus " << bus_->name() << ": "
+        << (cycle_error ? cycle_error.message() : std::string("no error"));
+      if (consecutive_timeouts > options_.max_consecutive_cycle_timeouts) {
+        m << ", " << consecutive_timeouts << " cycles in a row without every drive's answer";
+      }
+      m << "): " << DriveFaults(&report);
+      finish(DiamondLoopOutcome::kDriveFault, m.str());
+      SafeState(&report);
+      spdlog::error("diamond loop: {}", report.message);
+      break;
+    }
+
+    // 2. The law.
+    for (int i = 0; i < kDiamondJoints; ++i) sample.q[i] = drives_[i]->status().position;
+    DiamondCycleInput input;
+    input.now = now;
+    input.t = sample.time_s;
+    input.dt = dt;
+    input.q = sample.q;
+    sample.law = law->Step(input);
+    if (sample.law.state == DiamondLawState::kStop) {
+      finish(DiamondLoopOutcome::kLawStop,
+             "stopped at t = " + std::to_string(sample.time_s) + " s: " + sample.law.reason);
+      HoldAndSettle(&q_command);
+      SafeState(&report);
+      spdlog::error("diamond loop: {}", report.message);
+      break;
+    }
+    if (sample.law.state == DiamondLawState::kDone) {
+      finish(DiamondLoopOutcome::kCompleted,
+             "completed at t = " + std::to_string(sample.time_s) + " s");
+      HoldAndSettle(&q_command);
+      break;
+    }
+
+    // 3. Safety: rates, limits with the stopping distance, RCM closure.
+    Eigen::Vector2d q_dot = Eigen::Vector2d::Zero();
+    if (sample.law.state == DiamondLawState::kRunning) {
+      q_dot = sample.law.q_dot;
+    } else {
+      ++report.hold_cycles;
+    }
+    if (!q_dot.allFinite()) q_dot.setZero();
+    const double fastest = q_dot.cwiseAbs().maxCoeff();
+    if (fastest > options_.max_joint_velocity) {
+      q_dot *= options_.max_joint_velocity / fastest;
+      ++report.velocity_scaled_cycles;
+    }
+    const Eigen::Vector2d change = q_dot - q_dot_previous;
+    const double largest_change = change.cwiseAbs().maxCoeff();
+    if (largest_change > options_.max_joint_acceleration * dt) {
+      q_dot = q_dot_previous + change * (options_.max_joint_acceleration * dt / largest_change);
+      ++report.acceleration_limited_cycles;
+    }
+    const Eigen::Vector2d q_next = q_command + q_dot * dt;
+    const Eigen::Vector2d q_stop =
+        q_next + q_dot * dt +
+        q_dot.cwiseProduct(q_dot.cwiseAbs()) / (2.0 * options_.stop_deceleration);
+    robots::DiamondData stop_data;
+    std::string problem = CheckLimits(q_next, &data);
+    const double closure = data.valid ? ClosureResidual(model_, data) : INFINITY;
+    if (problem.empty()) problem = CheckLimits(q_stop, &stop_data);
+    if (problem.empty() && !(closure <= kClosureTolerance)) {
+      problem = "the commanded joints do not close the mechanism (RCM): residual " +
+                std::to_string(closure);
+    }
+    if (!problem.empty()) {
+      finish(DiamondLoopOutcome::kLimit, "limit at t = " + std::to_string(sample.time_s) +
+                                             " s: commanded q = (" + std::to_string(q_next[0]) +
+                                             ", " + std::to_string(q_next[1]) +
+                                             ") rad: " + problem);
+      HoldAndSettle(&q_command);
+      SafeState(&report);
+      spdlog::error("diamond loop: {}", report.message);
+      break;
+    }
+    report.rcm_closure_max = std::max(report.rcm_closure_max, closure);
+    q_command = q_next;
+    q_dot_previous = q_dot;
+    SetCommand(q_command);
+    sample.q_command = q_command;
+    sample.q_dot = q_dot;
+    record(&compute, ToSeconds(clock_->Now() - io_end));
+    if (options_.keep_samples && report.samples.size() < capacity) report.samples.push_back(sample);
+    if (observer) observer(sample);
+
+    if (sample.time_s >= options_.timeout_s) {
+      finish(DiamondLoopOutcome::kTimeout, "timeout after " + std::to_string(sample.time_s) + " s");
+      HoldAndSettle(&q_command);
+      break;
+    }
+  }
+  report.duration_s = ToSeconds(clock_->Now() - start);
+  for (int i = 0; i < kDiamondJoints; ++i) report.final_q[i] = drives_[i]->status().position;
+  report.timing = ComputePeriodStatistics(dt, std::move(periods), std::move(lateness),
+                                          std::move(io), std::move(compute), missed);
+  return report;
+}
+
+void WriteDiamondLogCsv(const std::string& path, const std::vector<DiamondLoopSample>& samples) {
+  std::ofstream out(path);
+  if (!out) throw std::runtime_error(path + ": cannot write the diamond control log");
+  out << "time_s,period_us,lateness_us,io_us,q1_rad,q2_rad,q1_cmd_rad,q2_cmd_rad,qdot1_radps,"
+         "qdot2_radps,phi_rad,gamma_rad,phi_ref_rad,gamma_ref_rad,u_px,v_px,u_ref_px,v_ref_px,"
+         "new_frame,marker_found,state\n";
+  out.precision(10);
+  for (const DiamondLoopSample& s : samples) {
+    out << s.time_s << ',' << s.period_s * 1e6 << ',' << s.lateness_s * 1e6 << ',' << s.io_s * 1e6
+        << ',' << s.q[0] << ',' << s.q[1] << ',' << s.q_command[0] << ',' << s.q_command[1] << ','
+        << s.q_dot[0] << ',' << s.q_dot[1] << ',' << s.law.task[0] << ',' << s.law.task[1] << ','
+        << s.law.task_reference[0] << ',' << s.law.task_reference[1] << ',' << s.law.pixel[0] << ','
+        << s.law.pixel[1] << ',' << s.law.pixel_reference[0] << ',' << s.law.pixel_reference[1]
+        << ',' << (s.law.new_frame ? 1 : 0) << ',' << (s.law.marker_found ? 1 : 0) << ','
+        << ToString(s.law.state) << '\n';
+  }
+  if (!out) throw std::runtime_error(path + ": writing the diamond control log failed");
+}
+
+}  // namespace kinevis::control
