@@ -83,7 +83,8 @@ WeldRig::WeldRig(const WeldRigOptions& options) : config_path_(options.config) {
       }
     }
     robot_backend = r.Text("welder.backend", "");
-    if (robot_backend.empty()) r.Problem("welder.backend: missing (e.g. modbus-tcp:192.168.0.10:502)");
+    if (robot_backend.empty())
+      r.Problem("welder.backend: missing (e.g. modbus-tcp:192.168.0.10:502)");
     r.CheckKeys("welder", {"backend"});
     camera_source = r.Text("scanner.source", "");
     if (camera_source.empty()) r.Problem("scanner.source: missing (e.g. v4l2:/dev/video0)");
@@ -120,11 +121,10 @@ WeldRig::WeldRig(const WeldRigOptions& options) : config_path_(options.config) {
   }
   const hal::CameraFormat f = camera_->format();
   if (f.width != camera_model_->width() || f.height != camera_model_->height()) {
-    throw std::invalid_argument("scanner camera " + camera_source + ": frames are " +
-                                std::to_string(f.width) + "x" + std::to_string(f.height) +
-                                " but the model " + camera_model_spec_ + " is for " +
-                                std::to_string(camera_model_->width()) + "x" +
-                                std::to_string(camera_model_->height()));
+    throw std::invalid_argument(
+        "scanner camera " + camera_source + ": frames are " + std::to_string(f.width) + "x" +
+        std::to_string(f.height) + " but the model " + camera_model_spec_ + " is for " +
+        std::to_string(camera_model_->width()) + "x" + std::to_string(camera_model_->height()));
   }
 }
 
