@@ -7,6 +7,8 @@
 #include <fstream>
 #include <stdexcept>
 
+#include "calibration/common/yaml_reader_internal.h"
+
 namespace kinevis::calibration {
 namespace {
 
@@ -15,100 +17,17 @@ constexpr int kVersion = 1;
 constexpr double kMm = 1e3;
 constexpr double kDeg = 180.0 / M_PI;
 
-std::string NowUtc() {
-  const std::time_t now = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&now, &tm);
-  char buffer[32];
-  std::strftime(buffer, sizeof(buffer), "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return buffer;
-}
+using internal::NowUtc;
 
 double Correlation(const Eigen::Matrix2d& c) {
   const double d = std::sqrt(c(0, 0) * c(1, 1));
   return d > 0.0 ? c(0, 1) / d : 0.0;
 }
 
-// Collects every problem of a file, then throws once.
-class Reader {
+class Reader : public internal::CheckedYamlReader {
  public:
-  explicit Reader(std::string path) : path_(std::move(path)) {}
-  void Bad(const std::string& key, const std::string& what) {
-    errors_ += (errors_.empty() ? "" : "; ") + key + ": " + what;
-  }
-  void ThrowIfBad() const {
-    if (!errors_.empty()) {
-      throw std::invalid_argument("laser scanner calibration file " + path_ + ": " + errors_);
-    }
-  }
-  YAML::Node Child(const YAML::Node& node, const std::string& name, const std::string& key) {
-    if (!node.IsMap() || !node[name]) {
-      Bad(key, "missing");
-      return YAML::Node();
-    }
-    return node[name];
-  }
-  double Double(const YAML::Node& node, const std::string& name, const std::string& key,
-                bool finite) {
-    const YAML::Node v = Child(node, name, key);
-    if (!v) return std::nan("");
-    double d = 0.0;
-    if (!v.IsScalar() || !YAML::convert<double>::decode(v, d)) {
-      Bad(key, "not a number (" + Dump(v) + ")");
-      return std::nan("");
-    }
-    if (finite && !std::isfinite(d)) Bad(key, "must be finite (" + v.Scalar() + ")");
-    return d;
-  }
-  int Int(const YAML::Node& node, const std::string& name, const std::string& key, int min) {
-    const YAML::Node v = Child(node, name, key);
-    if (!v) return 0;
-    int i = 0;
-    if (!v.IsScalar() || !YAML::convert<int>::decode(v, i)) {
-      Bad(key, "not an integer (" + Dump(v) + ")");
-      return 0;
-    }
-    if (i < min) Bad(key, "must be >= " + std::to_string(min) + " (" + v.Scalar() + ")");
-    return i;
-  }
-  bool Bool(const YAML::Node& node, const std::string& name, const std::string& key) {
-    const YAML::Node v = Child(node, name, key);
-    bool b = false;
-    if (v && (!v.IsScalar() || !YAML::convert<bool>::decode(v, b))) {
-      Bad(key, "not true/false (" + Dump(v) + ")");
-    }
-    return b;
-  }
-  std::string String(const YAML::Node& node, const std::string& name, const std::string& key) {
-    const YAML::Node v = Child(node, name, key);
-    if (!v) return "";
-    if (!v.IsScalar()) {
-      Bad(key, "not a string (" + Dump(v) + ")");
-      return "";
-    }
-    return v.Scalar();
-  }
-  std::vector<std::string> Strings(const YAML::Node& node, const std::string& name,
-                                   const std::string& key) {
-    std::vector<std::string> out;
-    const YAML::Node v = Child(node, name, key);
-    if (!v) return out;
-    if (!v.IsSequence()) {
-      Bad(key, "not a list (" + Dump(v) + ")");
-      return out;
-    }
-    for (const YAML::Node& s : v) out.push_back(s.IsScalar() ? s.Scalar() : Dump(s));
-    return out;
-  }
-  static std::string Dump(const YAML::Node& v) {
-    YAML::Emitter e;
-    e << YAML::Flow << v;
-    return e.c_str();
-  }
-
- private:
-  std::string path_;
-  std::string errors_;
+  explicit Reader(std::string path)
+      : CheckedYamlReader("laser scanner calibration file", std::move(path)) {}
 };
 
 }  // namespace
