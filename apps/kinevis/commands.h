@@ -34,6 +34,9 @@ void AddModelCommands(CLI::App& app, CommandList* commands);
 // `kinevis record hexapod`, `kinevis calibrate hexapod`, `kinevis servo hexapod`: `calibrate` and
 // `servo` are the existing subcommands (AddCalibrateCommands, AddServoCommands run first).
 void AddHexapodCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo, CommandList* commands);
+// `kinevis record scanner`, `kinevis calibrate scanner` (issue 7): after AddHexapodCommands (which
+// creates `record`).
+void AddWeldCommands(CLI::App& app, CLI::App& calibrate, CommandList* commands);
 void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
 // Called by AddDriveCommands: `kinevis sim drive` and `kinevis sim rs485-drive`.
 void AddDriveSimCommands(CLI::App& sim, CommandList* commands);

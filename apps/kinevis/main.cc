@@ -46,6 +46,7 @@ int main(int argc, char** argv) {
   AddModelCommands(app, &commands);
   AddHexapodCommands(app, *app.get_subcommand("calibrate"), *app.get_subcommand("servo"),
                      &commands);
+  AddWeldCommands(app, *app.get_subcommand("calibrate"), &commands);
 
   try {
     app.parse(argc, argv);
