@@ -37,8 +37,12 @@ void AddHexapodCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo, Com
 // `kinevis record scanner`, `kinevis calibrate scanner` (issue 7): after AddHexapodCommands (which
 // creates `record`).
 void AddWeldCommands(CLI::App& app, CLI::App& calibrate, CommandList* commands);
+// `kinevis record scanner-mount`, `kinevis calibrate scanner-mount` (issue 7): after
+// AddWeldCommands (`record` is found or made).
+void AddWeldMountCommands(CLI::App& app, CLI::App& calibrate, CommandList* commands);
 // `kinevis scan`, `record scan`, `weld-path`, `weld-run` (issue 7): after AddWeldCommands.
 void AddWeldScanCommands(CLI::App& app, CommandList* commands);
+// after AddWeldCommands (`record` is found or made; `plan-camera` too).
 void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
 // Called by AddDriveCommands: `kinevis sim drive` and `kinevis sim rs485-drive`.
 void AddDriveSimCommands(CLI::App& sim, CommandList* commands);

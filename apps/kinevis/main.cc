@@ -47,6 +47,7 @@ int main(int argc, char** argv) {
   AddHexapodCommands(app, *app.get_subcommand("calibrate"), *app.get_subcommand("servo"),
                      &commands);
   AddWeldCommands(app, *app.get_subcommand("calibrate"), &commands);
+  AddWeldMountCommands(app, *app.get_subcommand("calibrate"), &commands);
   AddWeldScanCommands(app, &commands);
 
   try {
