@@ -42,7 +42,9 @@ void AddWeldCommands(CLI::App& app, CLI::App& calibrate, CommandList* commands);
 void AddWeldMountCommands(CLI::App& app, CLI::App& calibrate, CommandList* commands);
 // `kinevis scan`, `record scan`, `weld-path`, `weld-run` (issue 7): after AddWeldCommands.
 void AddWeldScanCommands(CLI::App& app, CommandList* commands);
+// `kinevis record diamond`, `calibrate diamond`, `servo diamond`, `plan-camera diamond` (issue 8):
 // after AddWeldCommands (`record` is found or made; `plan-camera` too).
+void AddDiamondCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo, CommandList* commands);
 void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
 // Called by AddDriveCommands: `kinevis sim drive` and `kinevis sim rs485-drive`.
 void AddDriveSimCommands(CLI::App& sim, CommandList* commands);

@@ -49,6 +49,8 @@ int main(int argc, char** argv) {
   AddWeldCommands(app, *app.get_subcommand("calibrate"), &commands);
   AddWeldMountCommands(app, *app.get_subcommand("calibrate"), &commands);
   AddWeldScanCommands(app, &commands);
+  AddDiamondCommands(app, *app.get_subcommand("calibrate"), *app.get_subcommand("servo"),
+                     &commands);
 
   try {
     app.parse(argc, argv);
