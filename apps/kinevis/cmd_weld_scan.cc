@@ -34,6 +34,7 @@
 #include "apps/kinevis/commands.h"
 #include "apps/kinevis/weld_rig.h"
 #include "calibration/laser_scanner/laser_scanner_calibration_io.h"
+#include "calibration/weld_mount/mount_calibration_io.h"
 #include "calibration/weld_mount/scan_cloud.h"
 #include "calibration/weld_mount/scan_dataset.h"
 #include "control/weld/weld_plan_io.h"
@@ -85,6 +86,7 @@ std::string SidecarPath(const std::string& map) {
 struct ScanOptions {
   std::string config;
   std::string scanner;  // scanner calibration YAML; empty: the nominal geometry (seed Table 2)
+  std::string mount;    // scanner-mount calibration YAML; empty: the nominal (CAD) mount
   std::string at;       // joints to scan from; empty: where the robot stands
   std::string dataset;  // rebuild from a recorded scan
   std::string record;   // keep the images as a dataset
@@ -242,6 +244,17 @@ int RunScan(const ScanOptions& o) {
     frames = SweepFromDataset(d, model);
   }
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!o.mount.empty()) {
+    // The calibrated mount, and the D-H errors when they were estimated with it.
+    const calibration::ScannerMountCalibrationFile mount =
+        calibration::ReadScannerMountCalibration(o.mount);
+    X_5C = calibration::ReadScannerMount(o.mount);
+    mount_source = o.mount;
+    if (mount.dh_estimated) {
+      robot = calibration::CalibratedRobot(mount, robot);
+      robot_source += " + D-H errors from " + o.mount;
+    }
+  }
   if (frames.lines.empty()) {
     std::printf("scan: no usable frame of %d (%s)\n", frames.frames, frames.first_failure.c_str());
     return kExitJobFailed;
@@ -591,6 +604,10 @@ void AddWeldScanCommands(CLI::App& app, CommandList* commands) {
     c->add_option("--scanner", o->scanner,
                   "Scanner calibration YAML (kinevis calibrate scanner; default: the nominal "
                   "geometry of seed 004 Table 2)")
+        ->check(CLI::ExistingFile);
+    c->add_option("--mount", o->mount,
+                  "Scanner-mount calibration YAML (kinevis calibrate scanner-mount; default: the "
+                  "nominal CAD mount). With --dh there, its D-H errors too")
         ->check(CLI::ExistingFile);
     c->add_option("--at", o->at,
                   "Move here first: theta1,theta2,pz3,theta4,theta5 in deg, deg, mm, deg, deg "

@@ -179,12 +179,15 @@ TEST(CliTest, ReplayOfABadLogNamesFileAndLine) {
 }
 
 TEST(CliTest, DemoPassesEveryCheck) {
-  // The hexapod part records 60 poses and servoes (about 25 s on a quiet machine).
+  // The hexapod part records 60 poses and servoes (about 25 s on a quiet machine), the weld chain
+  // about 45 s, the DIAMOND part about 25 s.
   const std::string out = ::testing::TempDir() + "/kinevis-demo-" + std::to_string(::getpid());
   ProcessResult r = RunKinevis({"demo", "--out", out}, std::chrono::seconds(280));
   EXPECT_EQ(r.exit_code, 0) << r.out << r.err;
   EXPECT_THAT(r.out, ContainsRegex("demo: [0-9]+ checks passed, 0 failed"));
   EXPECT_THAT(r.out, HasSubstr("servo from the leg edges: converged"));
+  EXPECT_THAT(r.out, HasSubstr("executed stand-off against the true blade"));
+  EXPECT_THAT(r.out, HasSubstr("straightness a priori -> identified"));
   EXPECT_THAT(r.out, ::testing::Not(HasSubstr("FAIL")));
 }
 
