@@ -32,6 +32,7 @@
 #include "calibration/diamond/camera_placement.h"
 #include "calibration/diamond/diamond_calibration_io.h"
 #include "hal/common/error.h"
+#include "hal/common/realtime.h"
 #include "hal/drive/rs485_drive.h"
 #include "sim/diamond_world.h"
 #include "vision/camera/camera_file.h"
@@ -654,6 +655,15 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
   Eigen::Vector2d start = line.from, rate;
   control::DiamondLineReference(line, controller.model.radius, 0.0, &start, &rate);
 
+  // Memory is locked before the drives are enabled: mlockall of this process takes longer than
+  // the drives' 200 ms watchdog, and must not fall between two cycles.
+  hal::RealtimeRequest lock;
+  lock.lock_memory = o.rt_lock_memory;
+  const hal::RealtimeGrant locked = hal::ApplyRealtime(lock);
+  struct Unlock {
+    const hal::RealtimeGrant& g;
+    ~Unlock() { hal::RestoreNormalScheduling(g); }
+  } unlock{locked};
   if (!rig->enabled()) rig->Enable();
   run.approach = rig->MoveTo(start, o.approach_speed, &controller.model);
   run.reached_start = run.approach.outcome == control::DiamondLoopOutcome::kCompleted;
@@ -710,6 +720,18 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
   lo.max_consecutive_cycle_timeouts = 20;
   lo.timeout_s = o.timeout_s;
   control::DiamondControlLoop loop(&rig->bus(), &rig->clock(), controller.model, lo);
+
+  // Real-time priority for this thread only, now that the camera worker and the simulators run.
+  hal::RealtimeRequest rt;
+  rt.priority = o.rt_priority;
+  rt.cpu = o.rt_cpu;
+  const hal::RealtimeGrant grant = hal::ApplyRealtime(rt);
+  struct Restore {
+    const hal::RealtimeGrant& g;
+    ~Restore() { hal::RestoreNormalScheduling(g); }
+  } restore{grant};
+  run.realtime = grant.message;
+  if (o.rt_lock_memory) run.realtime += "; " + locked.message;
 
   if (o.law == DiamondServoLaw::kTaskPd) {
     control::DiamondTaskPdLaw law(controller.model, line);
@@ -813,6 +835,7 @@ void PrintDiamondServo(const DiamondServoRun& run, const DiamondServoOptions& o)
   if (!run.camera_error.empty()) std::printf("  %s\n", run.camera_error.c_str());
   std::printf("  loop: %.1f Hz (target %.1f Hz); %s\n", r.timing.rate_hz(),
               r.timing.target_s > 0 ? 1.0 / r.timing.target_s : 0.0, r.timing.Describe().c_str());
+  std::printf("  scheduling: %s\n", run.realtime.c_str());
   if (!run.real_time) {
     std::printf(
         "  (stepped simulated clock: the periods are exact by construction; --real-time runs the "
@@ -1151,6 +1174,15 @@ void AddDiamondCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo,
   sd->add_flag("--real-time", so->rig.real_time,
                "Simulated world only: run it in real time (steady clock), so that the printed "
                "loop rate and jitter are real (default: stepped simulated clock)");
+  sd->add_option("--rt-priority", so->servo.rt_priority,
+                 "SCHED_FIFO priority (1-99) of the control loop's thread during the run; needs "
+                 "CAP_SYS_NICE or an rtprio limit, else reported as refused (default 0: normal)")
+      ->check(CLI::Range(0, 99));
+  sd->add_option("--rt-cpu", so->servo.rt_cpu,
+                 "Pin the control loop's thread to this CPU during the run (default -1: any)")
+      ->check(CLI::Range(-1, 1023));
+  sd->add_flag("--rt-lock-memory", so->servo.rt_lock_memory,
+               "mlockall the process during the run (no page faults in the loop)");
   sd->add_option("--calib", so->servo.calib,
                  "Calibration result (kinevis calibrate diamond): the controller's R, alpha, "
                  "beta, offsets and camera pose; default: the a-priori set and the config's "

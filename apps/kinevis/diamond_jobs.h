@@ -118,6 +118,11 @@ struct DiamondServoOptions {
   double gain = 4.0;            // IBVS λ (1/s)
   double timeout_s = 20.0;      // of the main run
   std::string log;              // CSV of the main run ("" = none)
+  // Real-time scheduling of the loop's thread for the main run (hal/common/realtime.h): applied
+  // after the camera worker and the simulators exist, restored after. Priority 0: none.
+  int rt_priority = 0;
+  int rt_cpu = -1;
+  bool rt_lock_memory = false;
 };
 
 struct DiamondServoRun {
@@ -137,6 +142,7 @@ struct DiamondServoRun {
   Eigen::Vector2d target_pixel = Eigen::Vector2d::Constant(NAN);
   double final_pixel_error = NAN;
   bool real_time = true;  // false on a stepped simulated clock (period statistics exact)
+  std::string realtime;   // what the kernel granted of rt_priority / rt_cpu / rt_lock_memory
   // Simulated rig only: the true tool path.
   bool simulated = false;
   int true_points = 0;

@@ -1,0 +1,42 @@
+#pragma once
+
+// Real-time scheduling for a fixed-rate control loop (issue 8: the DIAMOND's 1 kHz loop): the
+// calling thread to SCHED_FIFO at a priority, optionally pinned to one CPU, and the process's
+// memory locked (no page faults in the loop). What the kernel granted is reported, not assumed:
+// without CAP_SYS_NICE / an rtprio limit (ulimit -r) the priority is refused with EPERM and the
+// loop runs as before, with the reason in the report.
+//
+// Threads created by the calling thread afterwards inherit its policy: apply it right before the
+// loop, after the helper threads (camera worker, simulators) exist, and restore it after.
+
+#include <string>
+
+namespace kinevis::hal {
+
+struct RealtimeRequest {
+  int priority = 0;              // SCHED_FIFO priority 1..99; 0: leave the policy alone
+  int cpu = -1;                  // pin the calling thread to this CPU (>= 0); -1: leave it
+  bool lock_memory = false;      // mlockall(MCL_CURRENT | MCL_FUTURE)
+  std::string Validate() const;  // empty when usable, else each bad field and its value
+};
+
+struct RealtimeGrant {
+  bool priority_set = false;
+  bool cpu_set = false;
+  bool memory_locked = false;
+  // One line: what was asked, granted and refused (with errno's text), e.g.
+  // "SCHED_FIFO 80: refused (Operation not permitted; needs CAP_SYS_NICE or ulimit -r); cpu 1:
+  // set".
+  std::string message;
+};
+
+// Applies `request` to the calling thread (and, for lock_memory, the process). Throws
+// std::invalid_argument for a request that fails Validate() (priority outside 0..99, a CPU that
+// does not exist). Refusals by the kernel are reported in the grant, not thrown.
+RealtimeGrant ApplyRealtime(const RealtimeRequest& request);
+
+// Puts the calling thread back to SCHED_OTHER (nice 0), all CPUs, and unlocks memory if
+// `grant` locked it.
+void RestoreNormalScheduling(const RealtimeGrant& grant);
+
+}  // namespace kinevis::hal
