@@ -11,10 +11,14 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "calibration/common/csv_internal.h"
 #include "robots/io/robot_description.h"
 
 namespace kinevis::calibration {
 namespace {
+
+using internal::ParseDouble;
+using internal::SplitCsv;
 
 namespace fs = std::filesystem;
 constexpr const char* kKind = "kinevis-diamond-dataset";
@@ -52,22 +56,6 @@ std::string CheckRigid(const Eigen::Isometry3d& X) {
   const double orth = (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
   if (orth > 1e-6 || R.determinant() < 0) return "linear part is not a rotation";
   return "";
-}
-
-bool ParseDouble(const std::string& text, double* value) {
-  if (text.empty()) return false;
-  char* end = nullptr;
-  *value = std::strtod(text.c_str(), &end);
-  return end == text.c_str() + text.size() && std::isfinite(*value);
-}
-
-std::vector<std::string> SplitCsv(const std::string& line) {
-  std::vector<std::string> fields;
-  std::string field;
-  std::istringstream in(line);
-  while (std::getline(in, field, ',')) fields.push_back(field);
-  if (!line.empty() && line.back() == ',') fields.emplace_back();
-  return fields;
 }
 
 }  // namespace

@@ -11,8 +11,14 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "calibration/common/csv_internal.h"
+
 namespace kinevis::calibration {
 namespace {
+
+using internal::ParseDouble;
+using internal::ParseInt;
+using internal::SplitCsv;
 
 namespace fs = std::filesystem;
 constexpr const char* kKind = "kinevis-laser-scanner-dataset";
@@ -25,35 +31,6 @@ std::string NowUtc() {
   char buffer[32];
   std::strftime(buffer, sizeof(buffer), "%Y-%m-%dT%H:%M:%SZ", &tm);
   return buffer;
-}
-
-std::vector<std::string> SplitCsv(const std::string& line) {
-  std::vector<std::string> out;
-  std::stringstream in(line);
-  std::string field;
-  while (std::getline(in, field, ',')) out.push_back(field);
-  if (!line.empty() && line.back() == ',') out.push_back("");
-  return out;
-}
-
-bool ParseInt(const std::string& s, int* value) {
-  try {
-    size_t used = 0;
-    *value = std::stoi(s, &used);
-    return used == s.size();
-  } catch (const std::exception&) {
-    return false;
-  }
-}
-
-bool ParseDouble(const std::string& s, double* value) {
-  try {
-    size_t used = 0;
-    *value = std::stod(s, &used);
-    return used == s.size() && std::isfinite(*value);
-  } catch (const std::exception&) {
-    return false;
-  }
 }
 
 }  // namespace

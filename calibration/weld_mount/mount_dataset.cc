@@ -13,8 +13,14 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "calibration/common/csv_internal.h"
+
 namespace kinevis::calibration {
 namespace {
+
+using internal::ParseDouble;
+using internal::ParseInt;
+using internal::SplitCsv;
 
 namespace fs = std::filesystem;
 constexpr const char* kKind = "kinevis-scanner-mount-dataset";
@@ -41,35 +47,6 @@ std::string Num(double v) {
   char buffer[32];
   std::snprintf(buffer, sizeof(buffer), "%.17g", v);
   return buffer;
-}
-
-std::vector<std::string> SplitCsv(const std::string& line) {
-  std::vector<std::string> out;
-  std::string field;
-  std::stringstream in(line);
-  while (std::getline(in, field, ',')) out.push_back(field);
-  if (!line.empty() && line.back() == ',') out.push_back("");
-  return out;
-}
-
-bool ParseDouble(const std::string& s, double* value) {
-  try {
-    size_t used = 0;
-    *value = std::stod(s, &used);
-    return used == s.size() && std::isfinite(*value);
-  } catch (const std::exception&) {
-    return false;
-  }
-}
-
-bool ParseInt(const std::string& s, int* value) {
-  try {
-    size_t used = 0;
-    *value = std::stoi(s, &used);
-    return used == s.size();
-  } catch (const std::exception&) {
-    return false;
-  }
 }
 
 void EmitPose(YAML::Emitter& out, const Eigen::Isometry3d& X) {

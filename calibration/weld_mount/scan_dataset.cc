@@ -11,10 +11,14 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "calibration/common/csv_internal.h"
 #include "calibration/common/yaml_reader_internal.h"
 
 namespace kinevis::calibration {
 namespace {
+
+using internal::ParseDouble;
+using internal::SplitCsv;
 
 namespace fs = std::filesystem;
 constexpr const char* kKind = "kinevis-scan-dataset";
@@ -25,21 +29,6 @@ constexpr double kDeg = M_PI / 180.0;
 // Joint j to its file unit (deg, or mm for pz3) and back.
 double ToFile(int j, double q) { return j == 2 ? 1e3 * q : q / kDeg; }
 double FromFile(int j, double v) { return j == 2 ? 1e-3 * v : v * kDeg; }
-
-std::vector<std::string> SplitCsv(const std::string& line) {
-  std::vector<std::string> out;
-  std::stringstream in(line);
-  for (std::string field; std::getline(in, field, ',');) out.push_back(field);
-  if (!line.empty() && line.back() == ',') out.emplace_back();
-  return out;
-}
-
-bool ParseDouble(const std::string& text, double* value) {
-  if (text.empty()) return false;
-  char* end = nullptr;
-  *value = std::strtod(text.c_str(), &end);
-  return end == text.c_str() + text.size() && std::isfinite(*value);
-}
 
 }  // namespace
 
