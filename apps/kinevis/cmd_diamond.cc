@@ -725,6 +725,7 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
   hal::RealtimeRequest rt;
   rt.priority = o.rt_priority;
   rt.cpu = o.rt_cpu;
+  rt.timer_slack_ns = o.timer_slack_ns;
   const hal::RealtimeGrant grant = hal::ApplyRealtime(rt);
   struct Restore {
     const hal::RealtimeGrant& g;
@@ -1181,6 +1182,10 @@ void AddDiamondCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo,
   sd->add_option("--rt-cpu", so->servo.rt_cpu,
                  "Pin the control loop's thread to this CPU during the run (default -1: any)")
       ->check(CLI::Range(-1, 1023));
+  sd->add_option("--timer-slack-ns", so->servo.timer_slack_ns,
+                 "Timer slack of the control loop's thread during the run (ns; default 1: wake "
+                 "at the deadline; -1: the kernel's default, 50 us on Linux, 5 % of a period)")
+      ->check(CLI::Range(-1L, 1000000000L));
   sd->add_flag("--rt-lock-memory", so->servo.rt_lock_memory,
                "mlockall the process during the run (no page faults in the loop)");
   sd->add_option("--calib", so->servo.calib,

@@ -18,6 +18,8 @@ using CommandList = std::vector<Command>;
 
 void AddDemoCommand(CLI::App& app, CommandList* commands);
 void AddPortsCommand(CLI::App& app, CommandList* commands);
+// `kinevis check timing`: how steadily this host paces a fixed-rate loop.
+void AddCheckCommands(CLI::App& app, CommandList* commands);
 void AddCanCommands(CLI::App& app, CommandList* commands);
 // `sim` is the shared `kinevis sim` subcommand; each adds its simulator under it.
 void AddServoCommands(CLI::App& app, CLI::App& sim, CommandList* commands);

@@ -123,6 +123,7 @@ struct DiamondServoOptions {
   int rt_priority = 0;
   int rt_cpu = -1;
   bool rt_lock_memory = false;
+  long timer_slack_ns = 1;  // the loop thread's timer slack during the run (-1: kernel default)
 };
 
 struct DiamondServoRun {

@@ -31,6 +31,7 @@ int main(int argc, char** argv) {
   CommandList commands;
   AddDemoCommand(app, &commands);
   AddPortsCommand(app, &commands);
+  AddCheckCommands(app, &commands);
   AddCanCommands(app, &commands);
   CLI::App* sim = app.add_subcommand(
       "sim",

@@ -23,15 +23,6 @@ hal::Duration Seconds(double s) {
 }
 double ToSeconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
 
-// Order statistic at fraction f of a sorted vector (nearest rank).
-double Quantile(const std::vector<double>& sorted, double f) {
-  if (sorted.empty()) return 0.0;
-  const size_t k = std::min(
-      sorted.size() - 1,
-      static_cast<size_t>(std::ceil(f * static_cast<double>(sorted.size()))) - (f > 0 ? 1 : 0));
-  return sorted[k];
-}
-
 // Largest |w_i · u − cos β| of a forward kinematics result: zero when both limbs close on the
 // tool axis, i.e. the tool point is on the sphere of the RCM through a real assembly.
 double ClosureResidual(const robots::DiamondModel& model, const robots::DiamondData& data) {
@@ -84,59 +75,6 @@ const char* ToString(DiamondLoopOutcome outcome) {
       return "not started";
   }
   return "?";
-}
-
-std::string PeriodStatistics::Describe() const {
-  char text[512];
-  std::snprintf(text, sizeof text,
-                "target %.1f us, %llu periods: mean %.1f us (%.1f Hz), std %.1f us, min %.1f, "
-                "p50 %.1f, p99 %.1f, max %.1f us; max lateness %.1f us, %llu late > 10%%, %llu "
-                "missed; I/O mean %.1f p99 %.1f max %.1f us; compute mean %.2f p99 %.2f max "
-                "%.2f us",
-                target_s * 1e6, static_cast<unsigned long long>(periods), mean_s * 1e6, rate_hz(),
-                std_s * 1e6, min_s * 1e6, p50_s * 1e6, p99_s * 1e6, max_s * 1e6,
-                max_lateness_s * 1e6, static_cast<unsigned long long>(late_cycles),
-                static_cast<unsigned long long>(missed_deadlines), io_mean_s * 1e6, io_p99_s * 1e6,
-                io_max_s * 1e6, compute_mean_s * 1e6, compute_p99_s * 1e6, compute_max_s * 1e6);
-  return text;
-}
-
-PeriodStatistics ComputePeriodStatistics(double target_s, std::vector<double> periods,
-                                         std::vector<double> lateness, std::vector<double> io,
-                                         std::vector<double> compute, uint64_t missed_deadlines) {
-  PeriodStatistics s;
-  s.target_s = target_s;
-  s.missed_deadlines = missed_deadlines;
-  s.periods = periods.size();
-  if (!periods.empty()) {
-    double sum = 0.0;
-    for (double p : periods) sum += p;
-    s.mean_s = sum / periods.size();
-    double var = 0.0;
-    for (double p : periods) var += (p - s.mean_s) * (p - s.mean_s);
-    s.std_s = periods.size() > 1 ? std::sqrt(var / (periods.size() - 1)) : 0.0;
-    std::sort(periods.begin(), periods.end());
-    s.min_s = periods.front();
-    s.max_s = periods.back();
-    s.p50_s = Quantile(periods, 0.5);
-    s.p99_s = Quantile(periods, 0.99);
-  }
-  for (double l : lateness) {
-    s.max_lateness_s = std::max(s.max_lateness_s, l);
-    if (l > 0.1 * target_s) ++s.late_cycles;
-  }
-  const auto summarize = [](std::vector<double>& v, double* mean, double* p99, double* max) {
-    if (v.empty()) return;
-    double sum = 0.0;
-    for (double x : v) sum += x;
-    *mean = sum / v.size();
-    std::sort(v.begin(), v.end());
-    *p99 = Quantile(v, 0.99);
-    *max = v.back();
-  };
-  summarize(io, &s.io_mean_s, &s.io_p99_s, &s.io_max_s);
-  summarize(compute, &s.compute_mean_s, &s.compute_p99_s, &s.compute_max_s);
-  return s;
 }
 
 double Straightness(const std::vector<Eigen::Vector2d>& points) {
@@ -317,10 +255,7 @@ DiamondLoopReport DiamondControlLoop::Run(
 
   const hal::Duration start = clock_->Now();
   law->Start(q_command, start);
-  hal::Duration next = start;
-  hal::Duration previous_wake{0};
-  bool woke_before = false;
-  uint64_t missed = 0;
+  DeadlineGrid grid(clock_, period, start);
   int consecutive_timeouts = 0;
   Eigen::Vector2d q_dot_previous = Eigen::Vector2d::Zero();
   robots::DiamondData data;
@@ -332,21 +267,13 @@ DiamondLoopReport DiamondControlLoop::Run(
   };
 
   for (;;) {
-    next += period;
-    clock_->SleepUntil(next);
-    const hal::Duration now = clock_->Now();
-    const double late = ToSeconds(now - next);
-    if (late > dt) {  // woke more than a period late: re-synchronise the grid
-      missed += static_cast<uint64_t>(late / dt);
-      next = now;
-    }
+    const DeadlineGrid::Wake wake = grid.Next();
+    const hal::Duration now = wake.time;
     sample.time_s = ToSeconds(now - start);
-    sample.period_s = woke_before ? ToSeconds(now - previous_wake) : 0.0;
-    sample.lateness_s = std::max(0.0, late);
-    if (woke_before) record(&periods, sample.period_s);
+    sample.period_s = wake.period_s;
+    sample.lateness_s = wake.lateness_s;
+    if (!wake.first) record(&periods, sample.period_s);
     record(&lateness, sample.lateness_s);
-    previous_wake = now;
-    woke_before = true;
     ++report.cycles;
 
     // 1. The bus.
@@ -461,8 +388,9 @@ DiamondLoopReport DiamondControlLoop::Run(
   }
   report.duration_s = ToSeconds(clock_->Now() - start);
   for (int i = 0; i < kDiamondJoints; ++i) report.final_q[i] = drives_[i]->status().position;
-  report.timing = ComputePeriodStatistics(dt, std::move(periods), std::move(lateness),
-                                          std::move(io), std::move(compute), missed);
+  report.timing =
+      ComputePeriodStatistics(dt, std::move(periods), std::move(lateness), std::move(io),
+                              std::move(compute), grid.missed_deadlines());
   return report;
 }
 

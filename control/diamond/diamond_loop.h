@@ -30,7 +30,8 @@
 //    cycle to max_joint_acceleration (the direction of motion is kept).
 //  The law's kDone ends the run with kCompleted and the drives holding position, enabled.
 //
-// Timing statistics (PeriodStatistics): from the loop clock's time at each wake-up: the periods
+// Timing statistics (PeriodStatistics, control/common/fixed_rate.h; the deadline grid is its
+// DeadlineGrid): from the loop clock's time at each wake-up: the periods
 // between consecutive wake-ups, the lateness of each wake-up past its deadline, the time Cycle()
 // took (the two Modbus round trips) and the time the law and safety took. With a SteadyClock
 // these are real; with a stepped world the periods are exact by construction and only the
@@ -46,6 +47,7 @@
 #include <string>
 #include <vector>
 
+#include "control/common/fixed_rate.h"  // PeriodStatistics, DeadlineGrid
 #include "control/diamond/diamond_laws.h"
 #include "hal/common/clock.h"
 #include "hal/drive/motor_drive.h"
@@ -78,24 +80,6 @@ enum class DiamondLoopOutcome {
   kNotStarted,  // could not select the drive mode
 };
 const char* ToString(DiamondLoopOutcome outcome);
-
-// Period statistics of a run (s). p99 etc. are order statistics of the periods.
-struct PeriodStatistics {
-  double target_s = 0.0;
-  uint64_t periods = 0;  // number of periods measured (cycles − 1)
-  double mean_s = 0.0, std_s = 0.0, min_s = 0.0, p50_s = 0.0, p99_s = 0.0, max_s = 0.0;
-  // Lateness of the wake-ups past their deadlines: max, and how many were later than 10 % of
-  // the period; deadlines missed entirely (woke more than one period late: grid re-synchronised).
-  double max_lateness_s = 0.0;
-  uint64_t late_cycles = 0;
-  uint64_t missed_deadlines = 0;
-  // Time spent in the bus Cycle() (I/O) and in the law + safety (compute) per cycle.
-  double io_mean_s = 0.0, io_p99_s = 0.0, io_max_s = 0.0;
-  double compute_mean_s = 0.0, compute_p99_s = 0.0, compute_max_s = 0.0;
-  // Achieved rate 1 / mean period (Hz).
-  double rate_hz() const { return mean_s > 0 ? 1.0 / mean_s : 0.0; }
-  std::string Describe() const;  // one line, in µs
-};
 
 struct DiamondLoopSample {
   double time_s = 0.0;
@@ -155,11 +139,6 @@ class DiamondControlLoop {
   DiamondLoopOptions options_;
   std::vector<hal::MotorDrive*> drives_;
 };
-
-// Period statistics from per-cycle samples (exposed for tests and the bench).
-PeriodStatistics ComputePeriodStatistics(double target_s, std::vector<double> periods,
-                                         std::vector<double> lateness, std::vector<double> io,
-                                         std::vector<double> compute, uint64_t missed_deadlines);
 
 // CSV of the samples (docs/diamond-control.md). Throws std::runtime_error naming the file when
 // it cannot be written.

@@ -1,7 +1,9 @@
 #include "hal/common/clock.h"
 
+#include <time.h>
+
+#include <cerrno>
 #include <stdexcept>
-#include <thread>
 
 namespace kinevis::hal {
 
@@ -15,8 +17,16 @@ Duration SteadyClock::Now() const {
 }
 
 void SteadyClock::SleepUntil(Duration deadline) {
-  std::this_thread::sleep_until(std::chrono::steady_clock::time_point(
-      std::chrono::duration_cast<std::chrono::steady_clock::duration>(deadline)));
+  // An absolute sleep on CLOCK_MONOTONIC (std::chrono::steady_clock's clock on Linux): no window
+  // between reading the time and sleeping in which a preemption would shift the deadline, as a
+  // relative sleep has. Resumed after a signal.
+  static_assert(std::chrono::steady_clock::is_steady);
+  if (deadline <= Duration::zero()) return;
+  timespec t{};
+  t.tv_sec = static_cast<time_t>(deadline.count() / 1000000000);
+  t.tv_nsec = static_cast<long>(deadline.count() % 1000000000);
+  while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &t, nullptr) == EINTR) {
+  }
 }
 
 SimulatedClock::SimulatedClock(Mode mode, Duration start) : mode_(mode), now_(start) {}

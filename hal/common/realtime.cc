@@ -3,8 +3,10 @@
 #include <pthread.h>
 #include <sched.h>
 #include <sys/mman.h>
+#include <sys/prctl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <stdexcept>
@@ -26,6 +28,9 @@ std::string RealtimeRequest::Validate() const {
   const long cpus = sysconf(_SC_NPROCESSORS_ONLN);
   if (cpu < -1 || (cpu >= 0 && cpu >= cpus)) {
     add("cpu = " + std::to_string(cpu) + " (-1 = any, or 0.." + std::to_string(cpus - 1) + ")");
+  }
+  if (timer_slack_ns < -1 || timer_slack_ns > 1000000000L) {
+    add("timer_slack_ns = " + std::to_string(timer_slack_ns) + " (-1 = leave, or 0..1e9 ns)");
   }
   return out;
 }
@@ -64,6 +69,17 @@ RealtimeGrant ApplyRealtime(const RealtimeRequest& request) {
                         (err == ENOMEM || err == EPERM ? "; needs CAP_IPC_LOCK or ulimit -l" : "") +
                         ")"));
   }
+  if (request.timer_slack_ns >= 0) {
+    const int previous = prctl(PR_GET_TIMERSLACK, 0, 0, 0, 0);
+    // 0 means "the thread's default" to PR_SET_TIMERSLACK; 1 ns is the least that sticks.
+    const long slack = std::max(1L, request.timer_slack_ns);
+    const int rc = prctl(PR_SET_TIMERSLACK, static_cast<unsigned long>(slack), 0, 0, 0);
+    const int err = errno;
+    if (rc == 0 && previous >= 0) g.previous_timer_slack_ns = previous;
+    note("timer slack " + std::to_string(slack) + " ns: " +
+         (rc == 0 ? "set (was " + std::to_string(previous) + " ns)"
+                  : "refused (" + std::string(std::strerror(err)) + ")"));
+  }
   if (g.message.empty()) g.message = "normal scheduling (nothing requested)";
   return g;
 }
@@ -82,6 +98,9 @@ void RestoreNormalScheduling(const RealtimeGrant& grant) {
     pthread_setaffinity_np(pthread_self(), sizeof(set), &set);
   }
   if (grant.memory_locked) munlockall();
+  if (grant.previous_timer_slack_ns >= 0) {
+    prctl(PR_SET_TIMERSLACK, static_cast<unsigned long>(grant.previous_timer_slack_ns), 0, 0, 0);
+  }
 }
 
 }  // namespace kinevis::hal

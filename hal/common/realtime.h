@@ -14,9 +14,13 @@
 namespace kinevis::hal {
 
 struct RealtimeRequest {
-  int priority = 0;              // SCHED_FIFO priority 1..99; 0: leave the policy alone
-  int cpu = -1;                  // pin the calling thread to this CPU (>= 0); -1: leave it
-  bool lock_memory = false;      // mlockall(MCL_CURRENT | MCL_FUTURE)
+  int priority = 0;          // SCHED_FIFO priority 1..99; 0: leave the policy alone
+  int cpu = -1;              // pin the calling thread to this CPU (>= 0); -1: leave it
+  bool lock_memory = false;  // mlockall(MCL_CURRENT | MCL_FUTURE)
+  // The calling thread's timer slack (prctl PR_SET_TIMERSLACK, ns; no privilege needed): how
+  // much later than asked the kernel may wake a sleeping normal-policy thread to group wake-ups.
+  // Linux's default is 50 µs, 5 % of a 1 kHz period, added to every wake-up. -1: leave it.
+  long timer_slack_ns = -1;
   std::string Validate() const;  // empty when usable, else each bad field and its value
 };
 
@@ -24,6 +28,7 @@ struct RealtimeGrant {
   bool priority_set = false;
   bool cpu_set = false;
   bool memory_locked = false;
+  long previous_timer_slack_ns = -1;  // >= 0 when the slack was changed (restored from this)
   // One line: what was asked, granted and refused (with errno's text), e.g.
   // "SCHED_FIFO 80: refused (Operation not permitted; needs CAP_SYS_NICE or ulimit -r); cpu 1:
   // set".
@@ -35,8 +40,8 @@ struct RealtimeGrant {
 // does not exist). Refusals by the kernel are reported in the grant, not thrown.
 RealtimeGrant ApplyRealtime(const RealtimeRequest& request);
 
-// Puts the calling thread back to SCHED_OTHER (nice 0), all CPUs, and unlocks memory if
-// `grant` locked it.
+// Puts the calling thread back to SCHED_OTHER (nice 0), all CPUs, its previous timer slack, and
+// unlocks memory, for what `grant` changed.
 void RestoreNormalScheduling(const RealtimeGrant& grant);
 
 }  // namespace kinevis::hal

@@ -166,6 +166,21 @@ TEST_F(SlcanCliTest, ReplaySendsTheFramesOfALog) {
   EXPECT_EQ(got, (std::vector<std::string>{"080#", "181#0011223344556677", "701#R"}));
 }
 
+// The host timing check: whatever this machine holds, it measures, says so and exits 0 (steady)
+// or 1 (not); a request the machine cannot take is a usage error naming it.
+TEST(CliTest, CheckTimingMeasuresTheHostAndGivesAVerdict) {
+  const ProcessResult r = RunKinevis({"check", "timing", "--rate", "500", "--seconds", "0.2"});
+  EXPECT_TRUE(r.exit_code == 0 || r.exit_code == 1) << r.out << r.err;
+  EXPECT_THAT(r.out, HasSubstr("timer slack 1 ns: set"));
+  EXPECT_THAT(r.out, HasSubstr("periods: "));
+  EXPECT_THAT(r.out, HasSubstr("wake-ups: lateness p50 "));
+  EXPECT_THAT(r.out, HasSubstr(r.exit_code == 0 ? "steady: this host holds 500.0 Hz"
+                                                : "NOT steady at 500.0 Hz"));
+  const ProcessResult bad = RunKinevis({"check", "timing", "--seconds", "0.1", "--rt-cpu", "1000"});
+  EXPECT_EQ(bad.exit_code, 2) << bad.out << bad.err;
+  EXPECT_THAT(bad.err, HasSubstr("cpu = 1000"));
+}
+
 TEST(CliTest, ReplayOfABadLogNamesFileAndLine) {
   const std::string log = ::testing::TempDir() + "/kinevis_cli_bad.log";
   {

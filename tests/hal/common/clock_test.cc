@@ -1,6 +1,7 @@
 #include "hal/common/clock.h"
 
 #include <gtest/gtest.h>
+#include <time.h>
 
 #include <thread>
 
@@ -15,6 +16,21 @@ TEST(SteadyClockTest, IsMonotonicAndSleeps) {
   clock.SleepFor(2ms);
   Duration b = clock.Now();
   EXPECT_GE(b - a, 2ms);
+}
+
+// SleepUntil sleeps on CLOCK_MONOTONIC with an absolute deadline: Now() must be that clock.
+TEST(SteadyClockTest, IsClockMonotonicAndWakesNoEarlierThanTheDeadline) {
+  Clock& clock = SteadyClock::Instance();
+  timespec t{};
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  const Duration monotonic = std::chrono::seconds(t.tv_sec) + std::chrono::nanoseconds(t.tv_nsec);
+  EXPECT_LT(std::chrono::abs(clock.Now() - monotonic), 50ms);
+  for (int k = 0; k < 5; ++k) {
+    const Duration deadline = clock.Now() + 1ms;
+    clock.SleepUntil(deadline);
+    EXPECT_GE(clock.Now(), deadline);
+  }
+  clock.SleepUntil(clock.Now() - 1s);  // in the past: returns at once
 }
 
 TEST(SimulatedClockTest, FreeRunningSleepAdvancesTime) {

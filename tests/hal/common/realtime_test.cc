@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <pthread.h>
 #include <sched.h>
+#include <sys/prctl.h>
 
 #include <stdexcept>
 #include <thread>
@@ -58,6 +59,22 @@ TEST(Realtime, NothingRequestedChangesNothing) {
   t.join();
 }
 
+// Timer slack needs no privilege: set, read back, and restored to what it was.
+TEST(Realtime, TimerSlackIsSetAndRestored) {
+  std::thread t([] {
+    const int before = prctl(PR_GET_TIMERSLACK, 0, 0, 0, 0);
+    RealtimeRequest r;
+    r.timer_slack_ns = 1;
+    const RealtimeGrant g = ApplyRealtime(r);
+    EXPECT_THAT(g.message, HasSubstr("timer slack 1 ns: set"));
+    EXPECT_EQ(prctl(PR_GET_TIMERSLACK, 0, 0, 0, 0), 1);
+    EXPECT_EQ(g.previous_timer_slack_ns, before);
+    RestoreNormalScheduling(g);
+    EXPECT_EQ(prctl(PR_GET_TIMERSLACK, 0, 0, 0, 0), before);
+  });
+  t.join();
+}
+
 TEST(Realtime, BadRequestsAreNamed) {
   RealtimeRequest r;
   r.priority = 120;
@@ -68,6 +85,10 @@ TEST(Realtime, BadRequestsAreNamed) {
   r = RealtimeRequest();
   r.priority = -1;
   EXPECT_THROW(ApplyRealtime(r), std::invalid_argument);
+  r = RealtimeRequest();
+  r.timer_slack_ns = -5;
+  EXPECT_THAT([&] { ApplyRealtime(r); },
+              ::testing::ThrowsMessage<std::invalid_argument>(HasSubstr("timer_slack_ns = -5")));
 }
 
 }  // namespace
