@@ -195,6 +195,14 @@ DiamondRig::DiamondRig(const DiamondRigOptions& options) : config_path_(options.
 DiamondRig::~DiamondRig() {
   try {
     Disable();
+    // Disabled drives need no watchdog: switch it off, or a drive left on the line faults with
+    // a lost heartbeat (0x8130) 200 ms after this process exits, and the next job finds it in
+    // fault.
+    if (bus_) {
+      if (const std::error_code ec = bus_->Close()) {
+        spdlog::warn("diamond: closing the drive line on exit: {}", ec.message());
+      }
+    }
   } catch (const std::exception& e) {
     spdlog::warn("diamond: disabling the drives on exit: {}", e.what());
   }

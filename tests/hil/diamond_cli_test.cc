@@ -9,10 +9,12 @@
 
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <regex>
 #include <string>
+#include <thread>
 
 #include "calibration/diamond/diamond_calibration_io.h"
 #include "sim/diamond_world.h"
@@ -23,7 +25,11 @@ namespace {
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
+using testing::BackgroundProcess;
+using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
+using testing::KinevisCliPath;
+using ::testing::Not;
 using testing::ProcessResult;
 using testing::RunKinevis;
 
@@ -146,6 +152,67 @@ TEST(DiamondCliTest, IbvsServoesTheMarkerToTheTarget) {
   EXPECT_LT(detected, 0.5) << r.out;
   const double truth = NumberAfter(r.out, "true marker ");
   EXPECT_LT(truth, 0.5) << r.out;  // issue 8: <= 0.5 px
+}
+
+// The world in its own process (`kinevis sim world diamond`), the host reaching its drives over
+// the pty and its camera over TCP through a `rig: diamond` deployment file, as on the real robot.
+// Two jobs in a row: the first must leave the drives disabled with their watchdog off, or the
+// second finds them in a lost-heartbeat fault (0x8130) and cannot enable them.
+TEST(DiamondCliTest, DeploymentFileDrivesAWorldInAnotherProcessJobAfterJob) {
+  const std::string dir = TempDir("deployment");
+  const std::string root = KINEVIS_SOURCE_DIR;
+  // config/diamond-sim.yaml with absolute robot paths and a 0.2 rad following-error window (the
+  // host's set-points can stall for tens of milliseconds between two processes on a loaded
+  // 2-core machine; this test is about the transports and the exit, the fault path has its own).
+  const std::string world_config = dir + "/diamond-sim.yaml";
+  {
+    std::ifstream in(kConfig);
+    std::ofstream out(world_config);
+    for (std::string l; std::getline(in, l);) {
+      const size_t rel = l.find("../robots/");
+      if (rel != std::string::npos) l.replace(rel, 2, root);
+      if (l.find("following_error_window:") != std::string::npos) {
+        l = "  following_error_window: 0.2";
+      }
+      out << l << "\n";
+    }
+  }
+  BackgroundProcess world({KinevisCliPath(), "sim", "world", "diamond", "--config", world_config});
+  std::string backend, camera;
+  ASSERT_TRUE(world.ReadLine(&backend, 20s));
+  ASSERT_THAT(backend, ContainsRegex("^modbus-rtu:"));
+  ASSERT_TRUE(world.ReadLine(&camera, 5s));
+  ASSERT_THAT(camera, ContainsRegex("^net:.* diamond-marker$"));
+  camera = camera.substr(0, camera.find(' '));
+  const std::string deployment = dir + "/diamond.yaml";
+  {
+    std::ofstream out(deployment);
+    out << "rig: diamond\n"
+        << "drives: {backend: \"" << backend
+        << "\", units: [1, 2], counts_per_rad: 20860.756700940907, cycle_ms: 2}\n"
+        << "camera:\n"
+        << "  name: marker\n"
+        << "  source: \"" << camera << ",timeout_ms=5000\"\n"
+        << "  model: builtin:tsai-seed004\n"
+        << "  pose: {position: [0.0, 0.3155, 0.3155], rpy_deg: [135, 0, 0]}\n"
+        << "  distance_source: \"the world config\"\n"
+        << "  fps: 30\n"
+        << "  marker_half_side_mm: 5\n";
+  }
+  for (int job = 0; job < 2; ++job) {
+    const ProcessResult servo =
+        RunKinevis({"servo", "diamond", "--config", deployment, "--path", "line", "--from", "70,45",
+                    "--to", "110,45", "--duration", "2"},
+                   90s);
+    EXPECT_EQ(servo.exit_code, 0) << "job " << job << "\n" << servo.out << servo.err;
+    EXPECT_THAT(servo.out, HasSubstr("loop: "));
+    EXPECT_THAT(servo.out, HasSubstr("timer slack 1 ns: set"));
+    EXPECT_THAT(servo.out, HasSubstr("straightness (seed Table III)"));
+    EXPECT_THAT(servo.err, Not(HasSubstr("reset the fault first")));
+    // Longer than the drives' 200 ms watchdog: a drive still watching would fault now.
+    std::this_thread::sleep_for(500ms);
+  }
+  EXPECT_EQ(world.Stop(SIGTERM), 0);
 }
 
 TEST(DiamondCliTest, BadInputIsAUsageErrorNamingTheProblem) {
