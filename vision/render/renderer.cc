@@ -125,6 +125,10 @@ void Or2Into(uint8_t* __restrict mask, const uint8_t* __restrict a, const uint8_
 
 }  // namespace
 
+void Scene::MissesCameraFixed(const RayBatch& rays, uint8_t* out) const {
+  std::fill(out, out + rays.count, uint8_t{0});
+}
+
 void Scene::TraceBatch(const RayBatch& rays, Hit* hits) const {
   Ray ray;
   ray.p_C_O = rays.origins[0];
@@ -177,6 +181,9 @@ Renderer::Renderer(const CameraModel& camera, const RenderOptions& options)
   if (!message.empty()) throw std::invalid_argument(message);
 
   const int w = camera_.width(), h = camera_.height();
+  central_ = camera_.IsCentral();
+  width_ = w;
+  height_ = h;
   // The pixel-centre rays, stored as directions plus origins — one origin when all rays share it
   // (central models), so that the per-frame pass streams half the memory (96 MB → 48 MB for a
   // 1616×1216 camera).
@@ -309,6 +316,7 @@ Renderer::Renderer(const CameraModel& camera, const RenderOptions& options)
   batch_origins_.resize(batch_rays);
   batch_directions_.resize(batch_rays);
   batch_slots_.resize(batch_rays);
+  batch_misses_.resize(batch_rays);
   sample_hits_.resize(batch_rays);
 
   if (options_.blur_sigma_px > 0.0) {
@@ -344,6 +352,110 @@ bool Renderer::InterpolateRay(double pu, double pv, Ray* ray) const {
   return true;
 }
 
+inline __attribute__((always_inline)) bool Renderer::SampleRay(int i, int u, int v, int k,
+                                                               const Ray* exact,
+                                                               Eigen::Vector3d* origin,
+                                                               Eigen::Vector3d* direction) const {
+  const int w = width_, h = height_;
+  const SubSample& sub = subsamples_[k];
+  const int cell_u = u + sub.cell_du, cell_v = v + sub.cell_dv;
+  if (cell_u >= 0 && cell_v >= 0 && cell_u + 1 < w && cell_v + 1 < h) {
+    const size_t c = static_cast<size_t>(i + sub.cell_delta);
+    if (cell_interpolable_[c]) {  // all four rays valid, interpolation verified
+      // Written out per component (Eigen's expression for the same sums took ~120 instructions
+      // per sample; issue 5), normalised with one division.
+      const Eigen::Vector3d& a = directions_[c];
+      const Eigen::Vector3d& b = directions_[c + 1];
+      const Eigen::Vector3d& e = directions_[c + w];
+      const Eigen::Vector3d& f = directions_[c + w + 1];
+      const double dx = sub.w00 * a.x() + sub.w10 * b.x() + sub.w01 * e.x() + sub.w11 * f.x();
+      const double dy = sub.w00 * a.y() + sub.w10 * b.y() + sub.w01 * e.y() + sub.w11 * f.y();
+      const double dz = sub.w00 * a.z() + sub.w10 * b.z() + sub.w01 * e.z() + sub.w11 * f.z();
+      const double inv_norm = 1.0 / std::sqrt(dx * dx + dy * dy + dz * dz);
+      *direction = Eigen::Vector3d(dx * inv_norm, dy * inv_norm, dz * inv_norm);
+      if (central_) {
+        *origin = Origin(c);
+      } else {
+        const Eigen::Vector3d& oa = origins_[c];
+        const Eigen::Vector3d& ob = origins_[c + 1];
+        const Eigen::Vector3d& oe = origins_[c + w];
+        const Eigen::Vector3d& of = origins_[c + w + 1];
+        *origin = Eigen::Vector3d(
+            sub.w00 * oa.x() + sub.w10 * ob.x() + sub.w01 * oe.x() + sub.w11 * of.x(),
+            sub.w00 * oa.y() + sub.w10 * ob.y() + sub.w01 * oe.y() + sub.w11 * of.y(),
+            sub.w00 * oa.z() + sub.w10 * ob.z() + sub.w01 * oe.z() + sub.w11 * of.z());
+      }
+      return true;
+    }
+    if (exact != nullptr) {
+      *origin = exact[k].p_C_O;
+      *direction = exact[k].d_C;
+      return IsValidRay(exact[k]);
+    }
+  }
+  Ray ray;
+  if (camera_.BackProject(Eigen::Vector2d(u + sub.du, v + sub.dv), &ray) != ProjectionStatus::kOk) {
+    return false;  // no ray: black background (header)
+  }
+  *origin = ray.p_C_O;
+  *direction = ray.d_C;
+  return IsValidRay(ray);
+}
+
+void Renderer::PrepareCameraFixed(const Scene& scene) {
+  const int w = camera_.width(), h = camera_.height();
+  const size_t n = static_cast<size_t>(w) * h;
+  const int s = options_.supersampling;
+  const int ss = s > 1 ? s * s : 0;
+  misses_camera_fixed_.assign(n, uint8_t{1});
+  std::vector<Eigen::Vector3d> origins(1 + ss), directions(1 + ss);
+  std::vector<uint8_t> misses(1 + ss);
+  size_t next_exact = 0;
+  size_t missing = 0, pixels = 0;
+  for (int v = 0; v < h; ++v) {
+    for (int u = 0; u < w; ++u) {
+      const int i = v * w + u;
+      while (next_exact < exact_pixels_.size() && exact_pixels_[next_exact] < i) ++next_exact;
+      const Ray* exact = next_exact < exact_pixels_.size() && exact_pixels_[next_exact] == i
+                             ? &exact_rays_[next_exact * ss]
+                             : nullptr;
+      // Every ray this pixel may ever be traced with: its centre, and its sub-samples when it
+      // can become an edge pixel (a ray somewhere in its 3×3 neighbourhood).
+      int count = 0;
+      if (directions_[i].squaredNorm() > 0.0) {
+        origins[count] = Origin(i);
+        directions[count++] = directions_[i];
+      }
+      bool neighbour_ray = false;
+      for (int dv = -1; dv <= 1 && !neighbour_ray; ++dv) {
+        for (int du = -1; du <= 1 && !neighbour_ray; ++du) {
+          const int uu = u + du, vv = v + dv;
+          neighbour_ray = uu >= 0 && vv >= 0 && uu < w && vv < h &&
+                          directions_[static_cast<size_t>(vv) * w + uu].squaredNorm() > 0.0;
+        }
+      }
+      if (neighbour_ray) {
+        for (int k = 0; k < ss; ++k) {
+          if (SampleRay(i, u, v, k, exact, &origins[count], &directions[count])) ++count;
+        }
+      }
+      if (count == 0) continue;
+      ++pixels;
+      RayBatch batch;
+      batch.origins = origins.data();
+      batch.directions = directions.data();
+      batch.count = count;
+      scene.MissesCameraFixed(batch, misses.data());
+      const bool all =
+          std::all_of(misses.begin(), misses.begin() + count, [](uint8_t m) { return m != 0; });
+      misses_camera_fixed_[i] = all ? 1 : 0;
+      missing += all ? 1 : 0;
+    }
+  }
+  camera_fixed_key_ = scene.CameraFixedKey();
+  camera_fixed_miss_fraction_ = pixels > 0 ? static_cast<double>(missing) / pixels : 0.0;
+}
+
 void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8& out,
                       GroundTruth* truth) {
   const int w = camera_.width(), h = camera_.height();
@@ -359,6 +471,12 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
     edge_pixels_.reserve(n);
     if (!blur_kernel_.empty()) blur_scratch_.resize(n);
   }
+
+  // 0. Camera-fixed geometry: which pixels' rays all miss it, once per key.
+  const uint64_t key = scene.CameraFixedKey();
+  const bool use_misses = key != 0;
+  if (use_misses && key != camera_fixed_key_) PrepareCameraFixed(scene);
+  const uint8_t* misses = use_misses ? misses_camera_fixed_.data() : nullptr;
 
   // 1. Coarse pass: one ray per pixel centre, from the cache. Depths are kept only for the ground
   // truth, written straight into it.
@@ -385,6 +503,7 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
     batch.shared_origin = !own_origins;
     batch.directions = &directions_[first];
     batch.count = count;
+    if (use_misses) batch.misses_camera_fixed = &misses[first];
     Hit* hits = batch_hits_.data();
     scene.TraceBatch(batch, hits);
     for (int k = 0; k < count; ++k) {
@@ -464,48 +583,14 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
   // corners did not settle, each as one Scene::TraceBatch; sums in the unbatched order.
   const int s = options_.supersampling;
   if (s > 1) {
-    const bool central = camera_.IsCentral();
     const Hit black{0.0, 0, std::numeric_limits<double>::infinity()};
-    // The ray of sub-sample k of pixel i = (u, v): bilinear in the verified cell around it (the
-    // weights depend on k only, tabulated in subsamples_), else the exact ray cached by the
-    // constructor, else back-projected now (image border). False when there is none.
-    auto sample_ray = [&](int i, int u, int v, int k, const Ray* exact, Eigen::Vector3d* origin,
-                          Eigen::Vector3d* direction) -> bool {
-      const SubSample& sub = subsamples_[k];
-      const int cell_u = u + sub.cell_du, cell_v = v + sub.cell_dv;
-      if (cell_u >= 0 && cell_v >= 0 && cell_u + 1 < w && cell_v + 1 < h) {
-        const size_t c = static_cast<size_t>(i + sub.cell_delta);
-        if (cell_interpolable_[c]) {  // all four rays valid, interpolation verified
-          const Eigen::Vector3d d = sub.w00 * directions_[c] + sub.w10 * directions_[c + 1] +
-                                    sub.w01 * directions_[c + w] + sub.w11 * directions_[c + w + 1];
-          *direction = d / d.norm();
-          *origin = central
-                        ? Origin(c)
-                        : Eigen::Vector3d(sub.w00 * Origin(c) + sub.w10 * Origin(c + 1) +
-                                          sub.w01 * Origin(c + w) + sub.w11 * Origin(c + w + 1));
-          return true;
-        }
-        if (exact != nullptr) {
-          *origin = exact[k].p_C_O;
-          *direction = exact[k].d_C;
-          return IsValidRay(exact[k]);
-        }
-      }
-      Ray ray;
-      if (camera_.BackProject(Eigen::Vector2d(u + sub.du, v + sub.dv), &ray) !=
-          ProjectionStatus::kOk) {
-        return false;  // no ray: black background (header)
-      }
-      *origin = ray.p_C_O;
-      *direction = ray.d_C;
-      return IsValidRay(ray);
-    };
     // Queues sample k of the pixel in batch slot p (hit slot p·s² + k); traces the queue.
     const int ss = s * s;
     int queued = 0;
     auto queue = [&](int p, int i, int u, int v, int k, const Ray* exact) {
       const int slot = p * ss + k;
-      if (sample_ray(i, u, v, k, exact, &batch_origins_[queued], &batch_directions_[queued])) {
+      if (SampleRay(i, u, v, k, exact, &batch_origins_[queued], &batch_directions_[queued])) {
+        batch_misses_[queued] = use_misses ? misses[i] : uint8_t{0};
         batch_slots_[queued++] = slot;
       } else {
         sample_hits_[slot] = black;
@@ -517,6 +602,7 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
         batch.origins = batch_origins_.data();
         batch.directions = batch_directions_.data();
         batch.count = queued;
+        if (use_misses) batch.misses_camera_fixed = batch_misses_.data();
         scene.TraceBatch(batch, batch_hits_.data());
         for (int r = 0; r < queued; ++r) sample_hits_[batch_slots_[r]] = batch_hits_[r];
       }

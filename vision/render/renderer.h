@@ -42,6 +42,10 @@ struct RayBatch {
   const Eigen::Vector3d* directions = nullptr;
   int count = 0;
   bool shared_origin = false;
+  // Null, or per ray: nonzero when the scene's MissesCameraFixed() said the ray misses the
+  // scene's camera-fixed geometry (the renderer passes it only to a scene whose CameraFixedKey()
+  // is the one it asked with), so TraceBatch may skip testing that geometry.
+  const uint8_t* misses_camera_fixed = nullptr;
 };
 
 // A scene: pure function of the ray, const, thread-safe.
@@ -54,6 +58,17 @@ class Scene {
   // override it to amortise per-ray set-up or trace several rays at once, but must return exactly
   // what Trace() returns (the renderer mixes both).
   virtual void TraceBatch(const RayBatch& rays, Hit* hits) const;
+
+  // Geometry fixed to the camera (a robot's own body seen by its own camera) is where it was in
+  // every frame, for every pose of the robot in the world. A scene with such geometry returns a
+  // key for it (equal keys = the same camera-fixed geometry in C; 0 = none, the default). The
+  // renderer then asks once per key which of the rays it will ever trace (pixel centres and
+  // sub-samples: they are the same every frame) miss that geometry, and passes the answer with
+  // each batch (RayBatch::misses_camera_fixed). out[k] may be nonzero only when Trace(ray k)
+  // returns exactly what the scene returns for that ray without its camera-fixed geometry. The
+  // default says no ray misses it.
+  virtual uint64_t CameraFixedKey() const { return 0; }
+  virtual void MissesCameraFixed(const RayBatch& rays, uint8_t* out) const;
 };
 
 // A non-owning 8-bit grey image view (row-major, `stride` bytes per row); hal::Image and cv::Mat
@@ -111,6 +126,12 @@ class Renderer {
 
   // Number of pixels supersampled in the last Render() (for tests and the bench).
   int last_edge_pixels() const { return last_edge_pixels_; }
+  // For a scene with camera-fixed geometry (Scene::CameraFixedKey()): the key the renderer's
+  // per-pixel answers are for (0 before the first such frame; a frame with another key asks
+  // again, which costs about s² + 1 camera-fixed tests per pixel), and the fraction of pixels
+  // whose every ray misses that geometry (traced without it).
+  uint64_t camera_fixed_key() const { return camera_fixed_key_; }
+  double camera_fixed_miss_fraction() const { return camera_fixed_miss_fraction_; }
 
   // Sub-pixel sample rays are interpolated (bilinearly, direction renormalised) from the four
   // cached pixel-centre rays around them wherever the constructor verified, at the centre of that
@@ -131,6 +152,8 @@ class Renderer {
   std::vector<Eigen::Vector3d> directions_;
   std::vector<Eigen::Vector3d> origins_;
   Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
+  bool central_ = true;          // camera_.IsCentral()
+  int width_ = 0, height_ = 0;   // camera_'s (no virtual call per sample)
   std::vector<float> radiance_;  // scratch
   std::vector<int> object_;      // scratch
   std::vector<float> blur_scratch_;
@@ -163,6 +186,12 @@ class Renderer {
   std::vector<Eigen::Vector3d> batch_directions_;
   std::vector<int> batch_slots_;
   std::vector<Hit> sample_hits_;  // kBatchPixels × s² per-sample hits
+  // Per pixel: 1 when its centre ray and every sub-sample ray miss the camera-fixed geometry of
+  // scenes with key camera_fixed_key_ (empty while no such scene was rendered).
+  std::vector<uint8_t> misses_camera_fixed_;
+  uint64_t camera_fixed_key_ = 0;
+  double camera_fixed_miss_fraction_ = 0.0;
+  std::vector<uint8_t> batch_misses_;  // per queued sample ray: its pixel's flag
   double max_interpolation_error_px_ = 0.0;
   double interpolated_cell_fraction_ = 0.0;
   int last_edge_pixels_ = 0;
@@ -178,6 +207,14 @@ class Renderer {
   // Bilinear interpolation of the cached rays at sub-pixel position (pu, pv) if the cell is
   // marked interpolable (used to verify the cells in the constructor).
   bool InterpolateRay(double pu, double pv, Ray* ray) const;
+  // The ray of sub-sample k of pixel i = (u, v): bilinear in the verified cell around it, else
+  // the exact ray cached by the constructor (`exact`: the pixel's s² rays, or null), else
+  // back-projected now (image border). False when there is none. Render() and
+  // PrepareCameraFixed() both trace exactly these rays.
+  bool SampleRay(int i, int u, int v, int k, const Ray* exact, Eigen::Vector3d* origin,
+                 Eigen::Vector3d* direction) const;
+  // Fills misses_camera_fixed_ for the scene's key.
+  void PrepareCameraFixed(const Scene& scene);
 };
 
 }  // namespace kinevis::vision::render

@@ -539,5 +539,91 @@ TEST(RendererTest, RendersThroughTraceBatchWithValidRaysOnlyAndTheSameBytes) {
   }
 }
 
+// A disc fixed to the camera (z = 1, radius 0.2 about the optical axis: object 2) in front of a
+// half-space of the world (HalfSpaceScene): the disc is camera-fixed geometry (renderer.h).
+// Counts what the renderer asked and flagged.
+class CameraFixedDiscScene final : public Scene {
+ public:
+  CameraFixedDiscScene(const Eigen::Vector3d& n, double disc_radius)
+      : world_(n, 0.2, 0.9), radius_(disc_radius) {}
+  Hit Trace(const Ray& ray) const override {
+    return HitsDisc(ray.p_C_O, ray.d_C) ? Hit{0.05, 2, 1.0 / ray.d_C.z()} : world_.Trace(ray);
+  }
+  void TraceBatch(const RayBatch& rays, Hit* hits) const override {
+    for (int k = 0; k < rays.count; ++k) {
+      Ray ray;
+      ray.p_C_O = rays.origins[rays.shared_origin ? 0 : k];
+      ray.d_C = rays.directions[k];
+      const bool skip = rays.misses_camera_fixed != nullptr && rays.misses_camera_fixed[k];
+      flagged_ += skip ? 1 : 0;
+      hits[k] = skip ? world_.Trace(ray) : Trace(ray);
+    }
+  }
+  uint64_t CameraFixedKey() const override { return 1000 + static_cast<uint64_t>(radius_ * 1e6); }
+  void MissesCameraFixed(const RayBatch& rays, uint8_t* out) const override {
+    ++asked_;
+    for (int k = 0; k < rays.count; ++k) {
+      out[k] = HitsDisc(rays.origins[rays.shared_origin ? 0 : k], rays.directions[k]) ? 0 : 1;
+    }
+  }
+  mutable long flagged_ = 0;
+  mutable long asked_ = 0;
+
+ private:
+  bool HitsDisc(const Eigen::Vector3d& o, const Eigen::Vector3d& d) const {
+    if (!(d.z() > 0.0)) return false;
+    const double t = (1.0 - o.z()) / d.z();
+    return t > 0.0 && (o + t * d).head<2>().squaredNorm() <= radius_ * radius_;
+  }
+  HalfSpaceScene world_;
+  double radius_;
+};
+
+TEST(RendererTest, CameraFixedGeometryIsAskedOncePerKeyAndTheFrameIsUnchanged) {
+  const PinholeBrownCamera camera = Pinhole(200, 150, 180.0);
+  RenderOptions o;
+  o.supersampling = 4;
+  Renderer renderer(camera, o);
+  EXPECT_EQ(renderer.camera_fixed_key(), 0u);
+  const CameraFixedDiscScene a(Eigen::Vector3d(0.3, -1.0, 0.1).normalized(), 0.2);
+  class TraceOnly final : public Scene {
+   public:
+    explicit TraceOnly(const Scene& inner) : inner_(inner) {}
+    Hit Trace(const Ray& ray) const override { return inner_.Trace(ray); }
+
+   private:
+    const Scene& inner_;
+  } reference(a);
+  Frame with = MakeFrame(camera), without = MakeFrame(camera);
+  GroundTruth truth_with, truth_without;
+  renderer.Render(a, 1, with.view, &truth_with);
+  renderer.Render(reference, 1, without.view, &truth_without);
+  EXPECT_EQ(with.pixels, without.pixels);
+  EXPECT_EQ(truth_with.object, truth_without.object);
+  EXPECT_EQ(truth_with.depth, truth_without.depth);
+  EXPECT_EQ(renderer.camera_fixed_key(), a.CameraFixedKey());
+  EXPECT_GT(renderer.camera_fixed_miss_fraction(), 0.5);
+  EXPECT_LT(renderer.camera_fixed_miss_fraction(), 1.0);
+  EXPECT_GT(a.flagged_, 10000);
+  EXPECT_GT(std::count(truth_with.object.begin(), truth_with.object.end(), 2), 100);
+  const long asked = a.asked_;
+  EXPECT_GT(asked, 0);
+
+  // Another world behind the same camera-fixed disc: not asked again.
+  const CameraFixedDiscScene b(Eigen::Vector3d(-0.5, 1.0, 0.2).normalized(), 0.2);
+  renderer.Render(b, 2, with.view);
+  EXPECT_EQ(b.asked_, 0);
+  EXPECT_GT(b.flagged_, 10000);
+  // Another disc: asked again, and the frame still equals the reference.
+  const CameraFixedDiscScene c(Eigen::Vector3d(0.3, -1.0, 0.1).normalized(), 0.35);
+  const TraceOnly reference_c(c);
+  renderer.Render(c, 3, with.view, &truth_with);
+  EXPECT_GT(c.asked_, 0);
+  EXPECT_EQ(renderer.camera_fixed_key(), c.CameraFixedKey());
+  renderer.Render(reference_c, 3, without.view, &truth_without);
+  EXPECT_EQ(with.pixels, without.pixels);
+  EXPECT_EQ(truth_with.object, truth_without.object);
+}
+
 }  // namespace
 }  // namespace kinevis::vision::render

@@ -459,5 +459,71 @@ TEST(SoccerFieldScene, TraceBatchEqualsTrace) {
   EXPECT_GE(objects.size(), 6u);
 }
 
+// The robot's own geometry rides with the camera (renderer.h, camera-fixed geometry): every ray
+// the scene says misses it traces, through TraceBatch with that flag, exactly as Trace(); the
+// rays that see the robot are never flagged; the key follows the robot's geometry, not its pose.
+TEST(SoccerFieldScene, RaysThatMissTheRobotTraceExactlyWithoutIt) {
+  const HyperbolicMirrorCamera camera = SeedCamera();
+  SoccerFieldSceneParameters p;
+  p.robot_x = 6.2;
+  p.robot_y = 4.9;
+  p.robot_heading = 0.4;
+  const SoccerFieldScene scene(camera, p);
+  std::vector<Eigen::Vector3d> origins, directions;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-0.5, camera.width() - 0.5);
+  std::uniform_real_distribution<double> v(-0.5, camera.height() - 0.5);
+  while (directions.size() < 100000) {
+    Ray ray;
+    if (camera.BackProject(Eigen::Vector2d(u(rng), v(rng)), &ray) != ProjectionStatus::kOk) {
+      continue;
+    }
+    origins.push_back(ray.p_C_O);
+    directions.push_back(ray.d_C);
+  }
+  RayBatch batch;
+  batch.origins = origins.data();
+  batch.directions = directions.data();
+  batch.count = static_cast<int>(directions.size());
+  std::vector<uint8_t> misses(directions.size());
+  scene.MissesCameraFixed(batch, misses.data());
+  batch.misses_camera_fixed = misses.data();
+  std::vector<Hit> hits(directions.size());
+  scene.TraceBatch(batch, hits.data());
+  int flagged = 0, different = 0, robot_flagged = 0, robot = 0;
+  for (size_t k = 0; k < directions.size(); ++k) {
+    Ray ray;
+    ray.p_C_O = origins[k];
+    ray.d_C = directions[k];
+    const Hit one = scene.Trace(ray);
+    const bool own = one.object == kFieldRobotBody || one.object == kFieldLensBody ||
+                     one.object == kFieldMirrorPost;
+    robot += own ? 1 : 0;
+    flagged += misses[k] ? 1 : 0;
+    if (misses[k] && own) ++robot_flagged;
+    if (one.object != hits[k].object || one.radiance != hits[k].radiance ||
+        !(one.depth == hits[k].depth)) {
+      ++different;
+    }
+  }
+  EXPECT_EQ(different, 0);
+  EXPECT_EQ(robot_flagged, 0);
+  EXPECT_GT(robot, 1000);
+  EXPECT_GT(flagged, 50000);  // most of the view is the field
+
+  EXPECT_NE(scene.CameraFixedKey(), 0u);
+  SoccerFieldSceneParameters moved = p;
+  moved.robot_x = -3.0;
+  moved.robot_heading = 2.0;
+  EXPECT_EQ(SoccerFieldScene(camera, moved).CameraFixedKey(), scene.CameraFixedKey());
+  SoccerFieldSceneParameters wider = p;
+  wider.body_radius = 0.23;
+  EXPECT_NE(SoccerFieldScene(camera, wider).CameraFixedKey(), scene.CameraFixedKey());
+  HyperbolicMirrorParameters mp = HyperbolicMirrorParameters::Seed000Lens4mm();
+  mp.ground_rho = 0.02;
+  EXPECT_NE(SoccerFieldScene(HyperbolicMirrorCamera(mp), p).CameraFixedKey(),
+            scene.CameraFixedKey());
+}
+
 }  // namespace
 }  // namespace kinevis::vision::render

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <sstream>
 #include <stdexcept>
 
@@ -262,6 +263,32 @@ SoccerFieldScene::SoccerFieldScene(const HyperbolicMirrorCamera& camera,
       line_cells_[static_cast<size_t>(iy) * line_cells_x_ + ix] = bits;
     }
   }
+
+  // Key of the camera-fixed geometry (renderer.h): FNV-1a over everything TraceCameraFixed()
+  // reads.
+  uint64_t key = 0xcbf29ce484222325ULL;
+  auto mix = [&key](double x) {
+    unsigned char bytes[sizeof x];
+    std::memcpy(bytes, &x, sizeof x);
+    for (unsigned char b : bytes) key = (key ^ b) * 0x100000001b3ULL;
+  };
+  for (int r = 0; r < 4; ++r) {
+    for (int c = 0; c < 4; ++c) mix(X_CG_.matrix()(r, c));
+  }
+  mix(parameters.post_count);
+  mix(parameters.post_radius);
+  mix(parameters.lens_radius);
+  mix(parameters.body_radius);
+  mix(parameters.body_height);
+  mix(incoming_post_cull_radius2_);
+  mix(lens_length_);
+  mix(body_length_);
+  for (int i = 0; i < parameters.post_count; ++i) {
+    for (int j = 0; j < 3; ++j) mix(post_bottom_C_[i][j]);
+    mix(post_length_[i]);
+  }
+  for (int j = 0; j < 3; ++j) mix(lens_bottom_C_[j]);
+  camera_fixed_key_ = key == 0 ? 1 : key;
 }
 
 bool SoccerFieldScene::OnLine(const Eigen::Vector2d& p_F) const {
@@ -315,26 +342,12 @@ FieldPoint SoccerFieldScene::ClassifyGround(const Eigen::Vector2d& p_G_xy) const
   return out;
 }
 
-inline __attribute__((always_inline)) Hit SoccerFieldScene::TraceRay(
-    const Eigen::Vector3d& o, const Eigen::Vector3d& d) const {
+inline __attribute__((always_inline)) bool SoccerFieldScene::TraceCameraFixed(
+    const Eigen::Vector3d& o, const Eigen::Vector3d& d, double* t_out, int* object_out) const {
   const SoccerFieldSceneParameters& p = parameters_;
   Ray ray_C;  // for the primitives
   ray_C.p_C_O = o;
   ray_C.d_C = d;
-  // IntersectPlane(ray_C, body_bottom_C_, body_axis_C_), inlined (the same expressions) and first,
-  // so that its division overlaps the culls below.
-  double t_ground = kNoHit;
-  {
-    const double denom = body_axis_C_.dot(d);
-    if (!(std::abs(denom) < 1e-15)) {
-      const double t = body_axis_C_.dot(body_bottom_C_ - o) / denom;
-      if (t > 1e-9) t_ground = t;
-    }
-  }
-  Hit hit;
-  hit.radiance = kBackgroundRadiance;
-  hit.object = kFieldBackground;
-  hit.depth = kNoHit;
   // 1. The path pinhole → mirror point, against the posts (only a mirror point beyond the posts'
   // inner reach from y_C can be hidden: the segment's points are no farther from y_C than it).
   const double o_xz2 = o.x() * o.x() + o.z() * o.z();
@@ -358,10 +371,9 @@ inline __attribute__((always_inline)) Hit SoccerFieldScene::TraceRay(
       incoming.d_C = o / to_mirror;
       if (IntersectCylinderAlongY(incoming, post_bottom_C_[i], post_length_[i], p.post_radius) <
           to_mirror) {
-        hit.radiance = p.post_radiance;
-        hit.object = kFieldMirrorPost;
-        hit.depth = 0.0;
-        return hit;
+        *t_out = 0.0;
+        *object_out = kFieldMirrorPost;
+        return true;
       }
     }
   }
@@ -444,8 +456,42 @@ inline __attribute__((always_inline)) Hit SoccerFieldScene::TraceRay(
       }
     }
   }
+  *t_out = best;
+  *object_out = object;
+  return false;
+}
+
+template <bool kCameraFixed>
+inline __attribute__((always_inline)) Hit SoccerFieldScene::TraceRay(
+    const Eigen::Vector3d& o, const Eigen::Vector3d& d) const {
+  const SoccerFieldSceneParameters& p = parameters_;
+  // IntersectPlane(ray, body_bottom_C_, body_axis_C_), inlined (the same expressions) and first,
+  // so that its division overlaps the camera-fixed tests.
+  double t_ground = kNoHit;
+  {
+    const double denom = body_axis_C_.dot(d);
+    if (!(std::abs(denom) < 1e-15)) {
+      const double t = body_axis_C_.dot(body_bottom_C_ - o) / denom;
+      if (t > 1e-9) t_ground = t;
+    }
+  }
+  Hit hit;
+  double best = kNoHit;
+  int object = kFieldSurroundings;
+  if constexpr (kCameraFixed) {
+    if (TraceCameraFixed(o, d, &best, &object)) {  // a post hides the mirror point
+      hit.radiance = p.post_radiance;
+      hit.object = kFieldMirrorPost;
+      hit.depth = 0.0;
+      return hit;
+    }
+  }
+  // The ground last: ties keep the camera-fixed hit, as in the original order of tests.
   const bool ground_nearest = t_ground < best;
-  consider(t_ground, kFieldCarpet);
+  if (ground_nearest) {
+    best = t_ground;
+    object = kFieldCarpet;
+  }
   hit.depth = best;
   switch (object) {
     case kFieldMirrorPost:
@@ -488,15 +534,28 @@ inline __attribute__((always_inline)) Hit SoccerFieldScene::TraceRay(
   return hit;
 }
 
-Hit SoccerFieldScene::Trace(const Ray& ray_C) const { return TraceRay(ray_C.p_C_O, ray_C.d_C); }
+Hit SoccerFieldScene::Trace(const Ray& ray_C) const {
+  return TraceRay<true>(ray_C.p_C_O, ray_C.d_C);
+}
 
-// Trace() inlined into one loop over the batch (no virtual call or Ray copy per ray).
+// Trace() inlined into one loop over the batch (no virtual call or Ray copy per ray); rays the
+// renderer flagged as missing the camera-fixed geometry are traced against the ground only.
 void SoccerFieldScene::TraceBatch(const RayBatch& rays, Hit* hits) const {
-  if (rays.shared_origin) {
-    const Eigen::Vector3d o = rays.origins[0];
-    for (int k = 0; k < rays.count; ++k) hits[k] = TraceRay(o, rays.directions[k]);
-  } else {
-    for (int k = 0; k < rays.count; ++k) hits[k] = TraceRay(rays.origins[k], rays.directions[k]);
+  const uint8_t* misses = rays.misses_camera_fixed;
+  for (int k = 0; k < rays.count; ++k) {
+    const Eigen::Vector3d& o = rays.origins[rays.shared_origin ? 0 : k];
+    hits[k] = misses != nullptr && misses[k] ? TraceRay<false>(o, rays.directions[k])
+                                             : TraceRay<true>(o, rays.directions[k]);
+  }
+}
+
+void SoccerFieldScene::MissesCameraFixed(const RayBatch& rays, uint8_t* out) const {
+  for (int k = 0; k < rays.count; ++k) {
+    double t = kNoHit;
+    int object = kFieldSurroundings;
+    const bool hidden =
+        TraceCameraFixed(rays.origins[rays.shared_origin ? 0 : k], rays.directions[k], &t, &object);
+    out[k] = !hidden && !(t < kNoHit) ? 1 : 0;
   }
 }
 

@@ -119,6 +119,11 @@ class SoccerFieldScene final : public Scene {
 
   Hit Trace(const Ray& ray_C) const override;
   void TraceBatch(const RayBatch& rays, Hit* hits) const override;  // exactly Trace() per ray
+  // The robot's body, lens body and mirror posts ride with the camera (renderer.h): the key is a
+  // hash of their geometry in C; a ray misses them when neither the pinhole → mirror segment nor
+  // the reflected ray meets any of them. Rays flagged so are traced against the ground only.
+  uint64_t CameraFixedKey() const override { return camera_fixed_key_; }
+  void MissesCameraFixed(const RayBatch& rays, uint8_t* out) const override;
 
   const SoccerFieldSceneParameters& parameters() const { return parameters_; }
   const Eigen::Isometry3d& X_CG() const { return X_CG_; }
@@ -184,7 +189,15 @@ class SoccerFieldScene final : public Scene {
 
   // on_line of ClassifyGround() for a point on the carpet, through the grid.
   bool OnLine(const Eigen::Vector2d& p_F) const;
-  // Trace() of the ray from o along d (both in C).
+  uint64_t camera_fixed_key_ = 0;
+  // The camera-fixed part of Trace(): the nearest hit of posts, lens body and robot body on the
+  // reflected ray (*t, *object; kNoHit and kFieldSurroundings for none). True when a post hides
+  // the mirror point (the pinhole → mirror segment meets it): the hit is then that post.
+  bool TraceCameraFixed(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double* t,
+                        int* object) const;
+  // Trace() of the ray from o along d (both in C); kCameraFixed false: the ray is known to miss
+  // the camera-fixed geometry (MissesCameraFixed), which is then not tested.
+  template <bool kCameraFixed>
   Hit TraceRay(const Eigen::Vector3d& o, const Eigen::Vector3d& d) const;
 };
 
