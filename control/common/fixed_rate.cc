@@ -25,18 +25,18 @@ double Quantile(const std::vector<double>& sorted, double f) {
 
 std::string PeriodStatistics::Describe() const {
   char text[512];
-  std::snprintf(text, sizeof text,
-                "target %.1f us, %llu periods: mean %.1f us (%.1f Hz), std %.1f us, min %.1f, "
-                "p50 %.1f, p99 %.1f, max %.1f us; lateness p50 %.1f p99 %.1f max %.1f us, %llu late > "
-                "10%%, %llu "
-                "missed; I/O mean %.1f p99 %.1f max %.1f us; compute mean %.2f p99 %.2f max "
-                "%.2f us",
-                target_s * 1e6, static_cast<unsigned long long>(periods), mean_s * 1e6, rate_hz(),
-                std_s * 1e6, min_s * 1e6, p50_s * 1e6, p99_s * 1e6, max_s * 1e6,
-                p50_lateness_s * 1e6, p99_lateness_s * 1e6, max_lateness_s * 1e6,
-                static_cast<unsigned long long>(late_cycles),
-                static_cast<unsigned long long>(missed_deadlines), io_mean_s * 1e6, io_p99_s * 1e6,
-                io_max_s * 1e6, compute_mean_s * 1e6, compute_p99_s * 1e6, compute_max_s * 1e6);
+  std::snprintf(
+      text, sizeof text,
+      "target %.1f us, %llu periods: mean %.1f us (%.1f Hz), std %.1f us, min %.1f, "
+      "p50 %.1f, p99 %.1f, max %.1f us; lateness p50 %.1f p99 %.1f max %.1f us, %llu late > "
+      "10%%, %llu "
+      "missed; I/O mean %.1f p99 %.1f max %.1f us; compute mean %.2f p99 %.2f max "
+      "%.2f us",
+      target_s * 1e6, static_cast<unsigned long long>(periods), mean_s * 1e6, rate_hz(),
+      std_s * 1e6, min_s * 1e6, p50_s * 1e6, p99_s * 1e6, max_s * 1e6, p50_lateness_s * 1e6,
+      p99_lateness_s * 1e6, max_lateness_s * 1e6, static_cast<unsigned long long>(late_cycles),
+      static_cast<unsigned long long>(missed_deadlines), io_mean_s * 1e6, io_p99_s * 1e6,
+      io_max_s * 1e6, compute_mean_s * 1e6, compute_p99_s * 1e6, compute_max_s * 1e6);
   return text;
 }
 
@@ -81,7 +81,6 @@ PeriodStatistics ComputePeriodStatistics(double target_s, std::vector<double> pe
   return s;
 }
 
-
 DeadlineGrid::DeadlineGrid(hal::Clock* clock, hal::Duration period, hal::Duration start)
     : clock_(clock), period_(period), next_(start) {
   if (clock == nullptr) throw std::invalid_argument("DeadlineGrid: null clock");
@@ -119,8 +118,8 @@ PeriodStatistics MeasureLoopTiming(hal::Clock* clock, double period_s, double du
     throw std::invalid_argument("MeasureLoopTiming: duration = " + std::to_string(duration_s) +
                                 " s (must be in [period, 3600])");
   }
-  const auto period = std::chrono::duration_cast<hal::Duration>(
-      std::chrono::duration<double>(period_s));
+  const auto period =
+      std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(period_s));
   const size_t cycles = static_cast<size_t>(std::ceil(duration_s / period_s));
   std::vector<double> periods, lateness;
   periods.reserve(cycles);

@@ -66,7 +66,7 @@ TEST(DeadlineGridTest, AStallLongerThanAPeriodCountsTheMissedDeadlinesAndResynch
   const DeadlineGrid::Wake stalled = grid.Next();  // deadline 2 ms, woke at 5.5 ms
   EXPECT_EQ(stalled.time, microseconds(5500));
   EXPECT_NEAR(stalled.lateness_s, 3.5e-3, 1e-12);
-  EXPECT_EQ(grid.missed_deadlines(), 3u);  // 3, 4 and 5 ms were never served
+  EXPECT_EQ(grid.missed_deadlines(), 3u);       // 3, 4 and 5 ms were never served
   const DeadlineGrid::Wake next = grid.Next();  // one period after the wake-up, no burst
   EXPECT_EQ(next.time, microseconds(6500));
   EXPECT_NEAR(next.period_s, 1e-3, 1e-12);
