@@ -50,19 +50,22 @@ int RunCheckTiming(const TimingOptions& o) {
       "%.1f us\n",
       static_cast<unsigned long long>(s.periods), s.mean_s * 1e6, s.rate_hz(), s.std_s * 1e6,
       s.min_s * 1e6, s.p50_s * 1e6, s.p99_s * 1e6, s.max_s * 1e6);
-  std::printf("wake-ups: lateness p50 %.1f, p99 %.1f, max %.1f us; %llu later than 10%% of the "
-              "period, %llu deadlines missed\n",
-              s.p50_lateness_s * 1e6, s.p99_lateness_s * 1e6, s.max_lateness_s * 1e6, static_cast<unsigned long long>(s.late_cycles),
-              static_cast<unsigned long long>(s.missed_deadlines));
+  std::printf(
+      "wake-ups: lateness p50 %.1f, p99 %.1f, max %.1f us; %llu later than 10%% of the "
+      "period, %llu deadlines missed\n",
+      s.p50_lateness_s * 1e6, s.p99_lateness_s * 1e6, s.max_lateness_s * 1e6,
+      static_cast<unsigned long long>(s.late_cycles),
+      static_cast<unsigned long long>(s.missed_deadlines));
   const std::string problem = control::SteadyRateProblem(s);
   if (problem.empty()) {
     std::printf("steady: this host holds %.1f Hz (no missed deadline, p99 within 10%%)\n",
                 o.rate_hz);
     return kExitOk;
   }
-  std::printf("NOT steady at %.1f Hz: %s. A control loop on this host can be no steadier; see "
-              "docs/diamond-control.md (real-time scheduling)\n",
-              o.rate_hz, problem.c_str());
+  std::printf(
+      "NOT steady at %.1f Hz: %s. A control loop on this host can be no steadier; see "
+      "docs/diamond-control.md (real-time scheduling)\n",
+      o.rate_hz, problem.c_str());
   return kExitJobFailed;
 }
 
@@ -81,16 +84,18 @@ void AddCheckCommands(CLI::App& app, CommandList* commands) {
       ->check(CLI::Range(1.0, 100000.0));
   timing->add_option("--seconds", o->seconds, "How long to measure (s, default 5)")
       ->check(CLI::Range(0.01, 3600.0));
-  timing->add_option("--rt-priority", o->rt_priority,
-                     "SCHED_FIFO priority (1-99) of the loop's thread; needs CAP_SYS_NICE or an "
-                     "rtprio limit, else reported as refused (default 0: normal)")
+  timing
+      ->add_option("--rt-priority", o->rt_priority,
+                   "SCHED_FIFO priority (1-99) of the loop's thread; needs CAP_SYS_NICE or an "
+                   "rtprio limit, else reported as refused (default 0: normal)")
       ->check(CLI::Range(0, 99));
   timing->add_option("--rt-cpu", o->rt_cpu, "Pin the loop's thread to this CPU (default -1: any)")
       ->check(CLI::Range(-1, 1023));
   timing->add_flag("--rt-lock-memory", o->rt_lock_memory, "mlockall the process during the run");
-  timing->add_option("--timer-slack-ns", o->timer_slack_ns,
-                     "Timer slack of the loop's thread (ns; default 1, as `servo diamond` uses; "
-                     "-1: the kernel's default, 50 us on Linux)")
+  timing
+      ->add_option("--timer-slack-ns", o->timer_slack_ns,
+                   "Timer slack of the loop's thread (ns; default 1, as `servo diamond` uses; "
+                   "-1: the kernel's default, 50 us on Linux)")
       ->check(CLI::Range(-1L, 1000000000L));
   commands->push_back({timing, [o] {
                          try {
