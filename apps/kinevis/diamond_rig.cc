@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <thread>
 
+#include "apps/kinevis/cli_common.h"
 #include "control/diamond/diamond_drives.h"
 #include "control/diamond/diamond_laws.h"
 #include "hal/camera/camera_factory.h"
@@ -178,18 +179,8 @@ DiamondRig::DiamondRig(const DiamondRigOptions& options) : config_path_(options.
   drives.cycle_period = std::chrono::microseconds(std::lround(cycle_period_s_ * 1e6));
   bus_ = control::MakeDiamondDriveBus(drives, clock_);
 
-  camera_ = hal::OpenCamera(camera_source, *clock_);
-  camera_->Open();
-  if (const std::error_code ec = camera_->Start()) {
-    throw hal::HalError(camera_source, "start", ec.message(), ec);
-  }
-  const hal::CameraFormat f = camera_->format();
-  if (f.width != camera_model_->width() || f.height != camera_model_->height()) {
-    throw std::invalid_argument(
-        "camera " + camera_name_ + ": frames are " + std::to_string(f.width) + "x" +
-        std::to_string(f.height) + " but the model " + camera_model_spec_ + " is for " +
-        std::to_string(camera_model_->width()) + "x" + std::to_string(camera_model_->height()));
-  }
+  camera_ = OpenRigCamera(camera_source, *clock_, camera_model_->width(), camera_model_->height(),
+                          "camera " + camera_name_, camera_model_spec_);
 }
 
 DiamondRig::~DiamondRig() {

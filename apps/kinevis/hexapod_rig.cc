@@ -6,6 +6,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "apps/kinevis/cli_common.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/can/can_bus_factory.h"
 #include "hal/canopen/canopen_master.h"
@@ -176,18 +177,8 @@ HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.
     drives_.push_back(master_->AddDrive(c));
   }
 
-  camera_ = hal::OpenCamera(camera_source, *clock_);
-  camera_->Open();
-  if (const std::error_code ec = camera_->Start()) {
-    throw hal::HalError(camera_source, "start", ec.message(), ec);
-  }
-  const hal::CameraFormat f = camera_->format();
-  if (f.width != camera_model_->width() || f.height != camera_model_->height()) {
-    throw std::invalid_argument(
-        "camera " + camera_name_ + ": frames are " + std::to_string(f.width) + "x" +
-        std::to_string(f.height) + " but the model " + camera_model_spec_ + " is for " +
-        std::to_string(camera_model_->width()) + "x" + std::to_string(camera_model_->height()));
-  }
+  camera_ = OpenRigCamera(camera_source, *clock_, camera_model_->width(), camera_model_->height(),
+                          "camera " + camera_name_, camera_model_spec_);
 }
 
 HexapodRig::~HexapodRig() {

@@ -8,6 +8,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "apps/kinevis/cli_common.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/common/error.h"
 #include "hal/weld/weld_robot_client.h"
@@ -114,18 +115,8 @@ WeldRig::WeldRig(const WeldRigOptions& options) : config_path_(options.config) {
   if (const std::error_code ec = robot_->Activate()) {
     throw hal::HalError(robot_->name(), "activate", robot_->last_error_text(), ec);
   }
-  camera_ = hal::OpenCamera(camera_source, *clock_);
-  camera_->Open();
-  if (const std::error_code ec = camera_->Start()) {
-    throw hal::HalError(camera_source, "start", ec.message(), ec);
-  }
-  const hal::CameraFormat f = camera_->format();
-  if (f.width != camera_model_->width() || f.height != camera_model_->height()) {
-    throw std::invalid_argument(
-        "scanner camera " + camera_source + ": frames are " + std::to_string(f.width) + "x" +
-        std::to_string(f.height) + " but the model " + camera_model_spec_ + " is for " +
-        std::to_string(camera_model_->width()) + "x" + std::to_string(camera_model_->height()));
-  }
+  camera_ = OpenRigCamera(camera_source, *clock_, camera_model_->width(), camera_model_->height(),
+                          "scanner camera " + camera_source, camera_model_spec_);
 }
 
 WeldRig::~WeldRig() {
