@@ -35,11 +35,8 @@ int RunCheckTiming(const TimingOptions& o) {
     std::fprintf(stderr, "kinevis check timing: %s\n", bad.c_str());
     return kExitUsage;
   }
-  const hal::RealtimeGrant grant = hal::ApplyRealtime(rt);
-  struct Restore {
-    const hal::RealtimeGrant& g;
-    ~Restore() { hal::RestoreNormalScheduling(g); }
-  } restore{grant};
+  const hal::ScopedRealtime scheduled(rt);
+  const hal::RealtimeGrant& grant = scheduled.grant();
   std::printf("scheduling: %s\n", grant.message.empty() ? "normal" : grant.message.c_str());
   std::printf("pacing an empty loop at %.1f Hz for %.1f s ...\n", o.rate_hz, o.seconds);
   std::fflush(stdout);

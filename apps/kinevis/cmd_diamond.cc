@@ -659,11 +659,7 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
   // the drives' 200 ms watchdog, and must not fall between two cycles.
   hal::RealtimeRequest lock;
   lock.lock_memory = o.rt_lock_memory;
-  const hal::RealtimeGrant locked = hal::ApplyRealtime(lock);
-  struct Unlock {
-    const hal::RealtimeGrant& g;
-    ~Unlock() { hal::RestoreNormalScheduling(g); }
-  } unlock{locked};
+  const hal::ScopedRealtime locked(lock);
   if (!rig->enabled()) rig->Enable();
   run.approach = rig->MoveTo(start, o.approach_speed, &controller.model);
   run.reached_start = run.approach.outcome == control::DiamondLoopOutcome::kCompleted;
@@ -726,13 +722,9 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
   rt.priority = o.rt_priority;
   rt.cpu = o.rt_cpu;
   rt.timer_slack_ns = o.timer_slack_ns;
-  const hal::RealtimeGrant grant = hal::ApplyRealtime(rt);
-  struct Restore {
-    const hal::RealtimeGrant& g;
-    ~Restore() { hal::RestoreNormalScheduling(g); }
-  } restore{grant};
-  run.realtime = grant.message;
-  if (o.rt_lock_memory) run.realtime += "; " + locked.message;
+  const hal::ScopedRealtime scheduled(rt);
+  run.realtime = scheduled.grant().message;
+  if (o.rt_lock_memory) run.realtime += "; " + locked.grant().message;
 
   if (o.law == DiamondServoLaw::kTaskPd) {
     control::DiamondTaskPdLaw law(controller.model, line);

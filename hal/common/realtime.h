@@ -44,4 +44,18 @@ RealtimeGrant ApplyRealtime(const RealtimeRequest& request);
 // unlocks memory, for what `grant` changed.
 void RestoreNormalScheduling(const RealtimeGrant& grant);
 
+// ApplyRealtime() for a scope: what was granted is restored (RestoreNormalScheduling) when the
+// scope ends. Same throws as ApplyRealtime().
+class ScopedRealtime {
+ public:
+  explicit ScopedRealtime(const RealtimeRequest& request) : grant_(ApplyRealtime(request)) {}
+  ~ScopedRealtime() { RestoreNormalScheduling(grant_); }
+  ScopedRealtime(const ScopedRealtime&) = delete;
+  ScopedRealtime& operator=(const ScopedRealtime&) = delete;
+  const RealtimeGrant& grant() const { return grant_; }
+
+ private:
+  RealtimeGrant grant_;
+};
+
 }  // namespace kinevis::hal
