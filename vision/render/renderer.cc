@@ -123,6 +123,16 @@ void Or2Into(uint8_t* __restrict mask, const uint8_t* __restrict a, const uint8_
   for (; u < count; ++u) mask[u] |= a[u] | b[u];
 }
 
+// The constructor's exact sub-sample rays of pixel i (its ss rays), or null when it has none.
+// Pixels are asked in ascending order; *cursor walks exact_pixels (also ascending) with them.
+const Ray* ExactRaysOf(const std::vector<int>& exact_pixels, const std::vector<Ray>& exact_rays,
+                       int ss, int i, size_t* cursor) {
+  while (*cursor < exact_pixels.size() && exact_pixels[*cursor] < i) ++*cursor;
+  return *cursor < exact_pixels.size() && exact_pixels[*cursor] == i
+             ? &exact_rays[*cursor * static_cast<size_t>(ss)]
+             : nullptr;
+}
+
 }  // namespace
 
 void Scene::MissesCameraFixed(const RayBatch& rays, uint8_t* out) const {
@@ -415,10 +425,7 @@ void Renderer::PrepareCameraFixed(const Scene& scene) {
   for (int v = 0; v < h; ++v) {
     for (int u = 0; u < w; ++u) {
       const int i = v * w + u;
-      while (next_exact < exact_pixels_.size() && exact_pixels_[next_exact] < i) ++next_exact;
-      const Ray* exact = next_exact < exact_pixels_.size() && exact_pixels_[next_exact] == i
-                             ? &exact_rays_[next_exact * ss]
-                             : nullptr;
+      const Ray* exact = ExactRaysOf(exact_pixels_, exact_rays_, ss, i, &next_exact);
       // Every ray this pixel may ever be traced with: its centre, and its sub-samples when it
       // can become an edge pixel (a ray somewhere in its 3×3 neighbourhood).
       int count = 0;
@@ -619,10 +626,7 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
       for (int p = 0; p < batch_pixels; ++p) {
         const int i = edge_pixels_[e0 + p];
         const int u = i % w, v = i / w;
-        while (next_exact < exact_pixels_.size() && exact_pixels_[next_exact] < i) ++next_exact;
-        exacts[p] = next_exact < exact_pixels_.size() && exact_pixels_[next_exact] == i
-                        ? &exact_rays_[next_exact * ss]
-                        : nullptr;
+        exacts[p] = ExactRaysOf(exact_pixels_, exact_rays_, ss, i, &next_exact);
         for (const int k : {0, k10, k01, k11}) queue(p, i, u, v, k, exacts[p]);
       }
       trace_queue();
