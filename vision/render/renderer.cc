@@ -133,10 +133,38 @@ const Ray* ExactRaysOf(const std::vector<int>& exact_pixels, const std::vector<R
              : nullptr;
 }
 
+// The box filter over an edge pixel's s×s sample hits (Render, section 3), in two steps: whether
+// the four corner samples settle the pixel (same object, radiances within `step`), with their
+// mean; else the mean of all s² samples, summed corners first and the others in order.
+bool CornersSettle(const Hit* hits, int s, double step, double* mean) {
+  const int last = s - 1;
+  const Hit &c00 = hits[0], &c10 = hits[last], &c01 = hits[last * s], &c11 = hits[last * s + last];
+  const double lo = std::min({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
+  const double hi = std::max({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
+  *mean = 0.25 * (c00.radiance + c10.radiance + c01.radiance + c11.radiance);
+  return c00.object == c10.object && c00.object == c01.object && c00.object == c11.object &&
+         hi - lo <= step;
+}
+
+double BoxMean(const Hit* hits, int s) {
+  const int last = s - 1, ss = s * s;
+  const int k10 = last, k01 = last * s, k11 = last * s + last;
+  double sum = hits[0].radiance + hits[k10].radiance + hits[k01].radiance + hits[k11].radiance;
+  for (int k = 0; k < ss; ++k) {
+    if (k != 0 && k != k10 && k != k01 && k != k11) sum += hits[k].radiance;
+  }
+  return sum / ss;
+}
+
 }  // namespace
 
-void Scene::MissesCameraFixed(const RayBatch& rays, uint8_t* out) const {
-  std::fill(out, out + rays.count, uint8_t{0});
+void Scene::TraceCameraFixed(const RayBatch& rays, CameraFixedHit* out) const {
+  std::fill(out, out + rays.count, CameraFixedHit{});
+}
+
+void Scene::ShadeSurface(const Eigen::Vector2d*, int, Hit*) const {
+  // Tier 1: only a scene that answered kSurface is asked, and such a scene must override this.
+  KINEVIS_RENDER_DEMAND(!"Scene::ShadeSurface called on a scene without a camera-fixed surface");
 }
 
 void Scene::TraceBatch(const RayBatch& rays, Hit* hits) const {
@@ -269,6 +297,13 @@ Renderer::Renderer(const CameraModel& camera, const RenderOptions& options)
       sub.w10 = fa * (1 - fb);
       sub.w01 = (1 - fa) * fb;
       sub.w11 = fa * fb;
+      const double lu[3] = {0.5 * sub.du * (sub.du - 1.0), 1.0 - sub.du * sub.du,
+                            0.5 * sub.du * (sub.du + 1.0)};
+      const double lv[3] = {0.5 * sub.dv * (sub.dv - 1.0), 1.0 - sub.dv * sub.dv,
+                            0.5 * sub.dv * (sub.dv + 1.0)};
+      for (int j = 0; j < 3; ++j) {
+        for (int m = 0; m < 3; ++m) sub.quadratic[3 * j + m] = lu[m] * lv[j];
+      }
     }
   }
   // Exact sub-sample rays of the interior pixels next to a cell that failed the interpolation
@@ -327,6 +362,10 @@ Renderer::Renderer(const CameraModel& camera, const RenderOptions& options)
   batch_directions_.resize(batch_rays);
   batch_slots_.resize(batch_rays);
   batch_misses_.resize(batch_rays);
+  batch_ones_.assign(std::max(static_cast<size_t>(w), batch_rays), uint8_t{1});
+  batch_surface_.resize(batch_rays);
+  batch_surface_slots_.resize(batch_rays);
+  batch_surface_hits_.resize(batch_rays);
   sample_hits_.resize(batch_rays);
 
   if (options_.blur_sigma_px > 0.0) {
@@ -412,55 +451,187 @@ inline __attribute__((always_inline)) bool Renderer::SampleRay(int i, int u, int
   return IsValidRay(ray);
 }
 
+inline __attribute__((always_inline)) Eigen::Vector2d Renderer::InterpolateSurface(int i,
+                                                                                   int k) const {
+  const std::array<double, 9>& q = subsamples_[k].quadratic;
+  const Eigen::Vector2d* row = &centre_surface_[static_cast<size_t>(i) - width_ - 1];
+  double x = 0.0, y = 0.0;
+  for (int b = 0; b < 3; ++b, row += width_) {
+    for (int a = 0; a < 3; ++a) {
+      x += q[3 * b + a] * row[a].x();
+      y += q[3 * b + a] * row[a].y();
+    }
+  }
+  return Eigen::Vector2d(x, y);
+}
+
 void Renderer::PrepareCameraFixed(const Scene& scene) {
-  const int w = camera_.width(), h = camera_.height();
+  const int w = width_, h = height_;
   const size_t n = static_cast<size_t>(w) * h;
   const int s = options_.supersampling;
   const int ss = s > 1 ? s * s : 0;
-  misses_camera_fixed_.assign(n, uint8_t{1});
-  std::vector<Eigen::Vector3d> origins(1 + ss), directions(1 + ss);
-  std::vector<uint8_t> misses(1 + ss);
-  size_t next_exact = 0;
-  size_t missing = 0, pixels = 0;
-  for (int v = 0; v < h; ++v) {
-    for (int u = 0; u < w; ++u) {
-      const int i = v * w + u;
-      const Ray* exact = ExactRaysOf(exact_pixels_, exact_rays_, ss, i, &next_exact);
-      // Every ray this pixel may ever be traced with: its centre, and its sub-samples when it
-      // can become an edge pixel (a ray somewhere in its 3×3 neighbourhood).
-      int count = 0;
-      if (directions_[i].squaredNorm() > 0.0) {
-        origins[count] = Origin(i);
-        directions[count++] = directions_[i];
+  CameraFixedStatistics stats;
+  stats.key = scene.CameraFixedKey();
+  const float no_depth = std::numeric_limits<float>::infinity();
+  centre_kind_.assign(n, CameraFixedHit::kTrace);
+  centre_surface_.assign(n, Eigen::Vector2d::Zero());
+  centre_depth_.assign(n, no_depth);
+  centre_radiance_.assign(n, 0.0f);
+  centre_object_.assign(n, 0);
+  sample_mode_.assign(n, kSampleRays);
+  constant_radiance_.assign(n, 0.0f);
+  kept_pixels_.clear();
+  kept_samples_.clear();
+  kind_runs_.clear();
+
+  // 1. Pixel centres, a run of a row at a time; then the runs split where the kind changes.
+  std::vector<CameraFixedHit> fixed(static_cast<size_t>(std::max(w, 1 + ss)));
+  const bool own_origins = !origins_.empty();
+  for (const auto& [first, count] : ray_runs_) {
+    RayBatch batch;
+    batch.origins = own_origins ? &origins_[first] : &origin_;
+    batch.shared_origin = !own_origins;
+    batch.directions = &directions_[first];
+    batch.count = count;
+    scene.TraceCameraFixed(batch, fixed.data());
+    for (int k = 0; k < count; ++k) {
+      const size_t i = static_cast<size_t>(first) + k;
+      const CameraFixedHit& f = fixed[k];
+      KINEVIS_RENDER_DEMAND(f.kind <= CameraFixedHit::kSurface);
+      centre_kind_[i] = f.kind;
+      switch (f.kind) {
+        case CameraFixedHit::kConstant:
+          centre_radiance_[i] = static_cast<float>(f.hit.radiance);
+          centre_object_[i] = f.hit.object;
+          centre_depth_[i] = static_cast<float>(f.hit.depth);
+          ++stats.centres_constant;
+          break;
+        case CameraFixedHit::kSurface:
+          centre_surface_[i] = f.surface;
+          centre_depth_[i] = static_cast<float>(f.hit.depth);
+          ++stats.centres_on_surface;
+          break;
+        default:
+          ++stats.centres_traced;
+          break;
       }
-      bool neighbour_ray = false;
-      for (int dv = -1; dv <= 1 && !neighbour_ray; ++dv) {
-        for (int du = -1; du <= 1 && !neighbour_ray; ++du) {
-          const int uu = u + du, vv = v + dv;
-          neighbour_ray = uu >= 0 && vv >= 0 && uu < w && vv < h &&
-                          directions_[static_cast<size_t>(vv) * w + uu].squaredNorm() > 0.0;
-        }
+    }
+    int start = 0;
+    for (int k = 1; k <= count; ++k) {
+      if (k == count || fixed[k].kind != fixed[start].kind) {
+        kind_runs_.push_back(KindRun{first + start, k - start, fixed[start].kind});
+        start = k;
       }
-      if (neighbour_ray) {
-        for (int k = 0; k < ss; ++k) {
-          if (SampleRay(i, u, v, k, exact, &origins[count], &directions[count])) ++count;
-        }
-      }
-      if (count == 0) continue;
-      ++pixels;
-      RayBatch batch;
-      batch.origins = origins.data();
-      batch.directions = directions.data();
-      batch.count = count;
-      scene.MissesCameraFixed(batch, misses.data());
-      const bool all =
-          std::all_of(misses.begin(), misses.begin() + count, [](uint8_t m) { return m != 0; });
-      misses_camera_fixed_[i] = all ? 1 : 0;
-      missing += all ? 1 : 0;
     }
   }
-  camera_fixed_key_ = scene.CameraFixedKey();
-  camera_fixed_miss_fraction_ = pixels > 0 ? static_cast<double>(missing) / pixels : 0.0;
+
+  // 2. Sub-samples of every pixel that can become an edge pixel (a ray in its 3×3 neighbourhood):
+  // the rays Render() would trace, asked once; a sample without a ray is constant black.
+  if (ss > 0) {
+    std::vector<Eigen::Vector3d> origins(ss), directions(ss);
+    std::vector<int> asked(ss);  // sample index of each ray asked
+    std::vector<CameraFixedHit> answers(ss);
+    std::vector<Hit> hits(ss);
+    size_t next_exact = 0;
+    for (int v = 0; v < h; ++v) {
+      for (int u = 0; u < w; ++u) {
+        const int i = v * w + u;
+        const Ray* exact = ExactRaysOf(exact_pixels_, exact_rays_, ss, i, &next_exact);
+        bool neighbour_ray = false;
+        for (int dv = -1; dv <= 1 && !neighbour_ray; ++dv) {
+          for (int du = -1; du <= 1 && !neighbour_ray; ++du) {
+            const int uu = u + du, vv = v + dv;
+            neighbour_ray = uu >= 0 && vv >= 0 && uu < w && vv < h &&
+                            directions_[static_cast<size_t>(vv) * w + uu].squaredNorm() > 0.0;
+          }
+        }
+        if (!neighbour_ray) continue;
+        int count = 0;
+        for (int k = 0; k < ss; ++k) {
+          CameraFixedHit& answer = answers[k];
+          if (SampleRay(i, u, v, k, exact, &origins[count], &directions[count])) {
+            asked[count++] = k;
+          } else {
+            answer.kind = CameraFixedHit::kConstant;  // no ray: black background
+            answer.hit = Hit{0.0, 0, std::numeric_limits<double>::infinity()};
+          }
+        }
+        if (count > 0) {
+          RayBatch batch;
+          batch.origins = origins.data();
+          batch.directions = directions.data();
+          batch.count = count;
+          scene.TraceCameraFixed(batch, fixed.data());
+          for (int r = 0; r < count; ++r) {
+            KINEVIS_RENDER_DEMAND(fixed[r].kind <= CameraFixedHit::kSurface);
+            answers[asked[r]] = fixed[r];
+          }
+        }
+        int kinds[4] = {0, 0, 0, 0};
+        for (const CameraFixedHit& a : answers) ++kinds[a.kind];
+        if (kinds[CameraFixedHit::kConstant] == ss) {
+          for (int k = 0; k < ss; ++k) hits[k] = answers[k].hit;
+          double mean = 0.0;
+          if (!CornersSettle(hits.data(), s, options_.edge_radiance_step, &mean)) {
+            mean = BoxMean(hits.data(), s);
+          }
+          sample_mode_[i] = kSampleConstant;
+          constant_radiance_[i] = static_cast<float>(mean);
+          ++stats.pixels_constant;
+          continue;
+        }
+        if (kinds[CameraFixedHit::kTrace] == ss || kinds[CameraFixedHit::kWorld] == ss) {
+          sample_mode_[i] = kinds[CameraFixedHit::kWorld] == ss ? kSampleWorldRays : kSampleRays;
+          ++stats.pixels_traced;
+          continue;
+        }
+        if (kinds[CameraFixedHit::kSurface] == ss) {
+          // Interpolated on the surface if every sample's interpolated point is within
+          // kMaxRayInterpolationErrorPx of its own ray's, in pixels through the cell's Jacobian.
+          bool ok = u >= 1 && v >= 1 && u + 1 < w && v + 1 < h;
+          for (int dv = -1; dv <= 1 && ok; ++dv) {
+            for (int du = -1; du <= 1 && ok; ++du) {
+              ok = centre_kind_[i + dv * w + du] == CameraFixedHit::kSurface;
+            }
+          }
+          double worst = 0.0;
+          if (ok) {
+            // The surface's Jacobian in pixels by central differences, to measure in pixels.
+            const Eigen::Vector2d e1 = 0.5 * (centre_surface_[i + 1] - centre_surface_[i - 1]);
+            const Eigen::Vector2d e2 = 0.5 * (centre_surface_[i + w] - centre_surface_[i - w]);
+            const double det = e1.x() * e2.y() - e1.y() * e2.x();
+            ok = std::isfinite(det) && std::abs(det) > 1e-12 * e1.norm() * e2.norm();
+            for (int k = 0; k < ss && ok; ++k) {
+              const Eigen::Vector2d d = InterpolateSurface(i, k) - answers[k].surface;
+              const double du = (e2.y() * d.x() - e2.x() * d.y()) / det;
+              const double dv = (e1.x() * d.y() - e1.y() * d.x()) / det;
+              const double error = std::hypot(du, dv);
+              ok = error <= kMaxRayInterpolationErrorPx;
+              worst = std::max(worst, error);
+            }
+          }
+          if (ok) {
+            sample_mode_[i] = kSampleInterpolated;
+            stats.max_surface_error_px = std::max(stats.max_surface_error_px, worst);
+            ++stats.pixels_interpolated;
+            continue;
+          }
+        }
+        sample_mode_[i] = kSampleKept;
+        kept_pixels_.push_back(i);
+        for (const CameraFixedHit& a : answers) {
+          KeptSample kept;
+          kept.kind = a.kind;
+          kept.surface = a.surface;
+          kept.radiance = a.hit.radiance;
+          kept.object = a.hit.object;
+          kept_samples_.push_back(kept);
+        }
+        ++stats.pixels_kept;
+      }
+    }
+  }
+  camera_fixed_ = stats;
 }
 
 void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8& out,
@@ -479,11 +650,10 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
     if (!blur_kernel_.empty()) blur_scratch_.resize(n);
   }
 
-  // 0. Camera-fixed geometry: which pixels' rays all miss it, once per key.
+  // 0. The camera-fixed part of the scene: asked once per key.
   const uint64_t key = scene.CameraFixedKey();
-  const bool use_misses = key != 0;
-  if (use_misses && key != camera_fixed_key_) PrepareCameraFixed(scene);
-  const uint8_t* misses = use_misses ? misses_camera_fixed_.data() : nullptr;
+  const bool use_fixed = key != 0;
+  if (use_fixed && key != camera_fixed_.key) PrepareCameraFixed(scene);
 
   // 1. Coarse pass: one ray per pixel centre, from the cache. Depths are kept only for the ground
   // truth, written straight into it.
@@ -494,7 +664,8 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
     truth->depth.resize(n);
     depth = truth->depth.data();
   }
-  // Pixels without a ray are black background; each run of pixels with one is one batch.
+  // Pixels without a ray are black background; each run of pixels with one is one batch: traced,
+  // or (camera-fixed part) copied or shaded on the surface.
   const bool own_origins = !origins_.empty();
   const float no_depth = std::numeric_limits<float>::infinity();
   auto background = [&](size_t from, size_t to) {
@@ -502,25 +673,55 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
     std::fill(object_.begin() + from, object_.begin() + to, 0);
     if (depth != nullptr) std::fill(depth + from, depth + to, no_depth);
   };
-  size_t done = 0;
-  for (const auto& [first, count] : ray_runs_) {
-    background(done, static_cast<size_t>(first));
+  auto store = [&](int first, int count, const Hit* hits, bool with_depth) {
+    for (int k = 0; k < count; ++k) {
+      radiance_[first + k] = static_cast<float>(hits[k].radiance);
+      object_[first + k] = hits[k].object;
+    }
+    if (depth != nullptr && with_depth) {
+      for (int k = 0; k < count; ++k) depth[first + k] = static_cast<float>(hits[k].depth);
+    }
+  };
+  auto trace_run = [&](int first, int count, bool world) {
     RayBatch batch;
     batch.origins = own_origins ? &origins_[first] : &origin_;
     batch.shared_origin = !own_origins;
     batch.directions = &directions_[first];
     batch.count = count;
-    if (use_misses) batch.misses_camera_fixed = &misses[first];
-    Hit* hits = batch_hits_.data();
-    scene.TraceBatch(batch, hits);
-    for (int k = 0; k < count; ++k) {
-      radiance_[first + k] = static_cast<float>(hits[k].radiance);
-      object_[first + k] = hits[k].object;
+    if (world) batch.misses_camera_fixed = batch_ones_.data();
+    scene.TraceBatch(batch, batch_hits_.data());
+    store(first, count, batch_hits_.data(), true);
+  };
+  size_t done = 0;
+  if (!use_fixed) {
+    for (const auto& [first, count] : ray_runs_) {
+      background(done, static_cast<size_t>(first));
+      trace_run(first, count, false);
+      done = static_cast<size_t>(first) + count;
     }
-    if (depth != nullptr) {
-      for (int k = 0; k < count; ++k) depth[first + k] = static_cast<float>(hits[k].depth);
+  } else {
+    for (const KindRun& run : kind_runs_) {
+      background(done, static_cast<size_t>(run.first));
+      const size_t first = static_cast<size_t>(run.first), to = first + run.count;
+      switch (run.kind) {
+        case CameraFixedHit::kConstant:
+          std::copy(&centre_radiance_[first], &centre_radiance_[to], &radiance_[first]);
+          std::copy(&centre_object_[first], &centre_object_[to], &object_[first]);
+          break;
+        case CameraFixedHit::kSurface:
+          scene.ShadeSurface(&centre_surface_[first], run.count, batch_hits_.data());
+          store(run.first, run.count, batch_hits_.data(), false);
+          break;
+        default:
+          trace_run(run.first, run.count, run.kind == CameraFixedHit::kWorld);
+          break;
+      }
+      if (depth != nullptr &&
+          (run.kind == CameraFixedHit::kConstant || run.kind == CameraFixedHit::kSurface)) {
+        std::copy(&centre_depth_[first], &centre_depth_[to], depth + first);
+      }
+      done = to;
     }
-    done = static_cast<size_t>(first) + count;
   }
   background(done, n);
   if (truth != nullptr) truth->object.assign(object_.begin(), object_.end());
@@ -587,20 +788,50 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
   // crossed by it, so this saves about a third of the samples; exact for straight edges, and for
   // the limb conics here the sagitta over the 0.75 px hull is < 0.01 px.
   // Batches: 32 edge pixels at a time, first their corners, then the other samples of those the
-  // corners did not settle, each as one Scene::TraceBatch; sums in the unbatched order.
+  // corners did not settle, each as one Scene::TraceBatch (and one Scene::ShadeSurface for the
+  // samples on a camera-fixed surface); sums in the unbatched order.
+  // With a camera-fixed part, each pixel's samples are made as PrepareCameraFixed decided: traced,
+  // constant (the kept radiance, no sample at all), interpolated on the surface, or from the kept
+  // per-sample answers.
   const int s = options_.supersampling;
   if (s > 1) {
     const Hit black{0.0, 0, std::numeric_limits<double>::infinity()};
-    // Queues sample k of the pixel in batch slot p (hit slot p·s² + k); traces the queue.
     const int ss = s * s;
-    int queued = 0;
-    auto queue = [&](int p, int i, int u, int v, int k, const Ray* exact) {
-      const int slot = p * ss + k;
+    int queued = 0, queued_surface = 0;
+    // Queues sample k of the pixel in batch slot p (hit slot p·s² + k) for tracing or shading.
+    auto queue_ray = [&](int slot, int i, int u, int v, int k, const Ray* exact, bool world) {
       if (SampleRay(i, u, v, k, exact, &batch_origins_[queued], &batch_directions_[queued])) {
-        batch_misses_[queued] = use_misses ? misses[i] : uint8_t{0};
+        batch_misses_[queued] = world ? 1 : 0;
         batch_slots_[queued++] = slot;
       } else {
         sample_hits_[slot] = black;
+      }
+    };
+    auto queue = [&](int p, int i, int u, int v, int k, uint8_t mode, const Ray* exact,
+                     const KeptSample* kept) {
+      const int slot = p * ss + k;
+      switch (mode) {
+        case kSampleInterpolated:
+          batch_surface_[queued_surface] = InterpolateSurface(i, k);
+          batch_surface_slots_[queued_surface++] = slot;
+          break;
+        case kSampleKept:
+          switch (kept[k].kind) {
+            case CameraFixedHit::kConstant:
+              sample_hits_[slot] = Hit{kept[k].radiance, kept[k].object, 0.0};
+              break;
+            case CameraFixedHit::kSurface:
+              batch_surface_[queued_surface] = kept[k].surface;
+              batch_surface_slots_[queued_surface++] = slot;
+              break;
+            default:
+              queue_ray(slot, i, u, v, k, exact, kept[k].kind == CameraFixedHit::kWorld);
+              break;
+          }
+          break;
+        default:
+          queue_ray(slot, i, u, v, k, exact, mode == kSampleWorldRays);
+          break;
       }
     };
     auto trace_queue = [&]() {
@@ -609,55 +840,71 @@ void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8
         batch.origins = batch_origins_.data();
         batch.directions = batch_directions_.data();
         batch.count = queued;
-        if (use_misses) batch.misses_camera_fixed = batch_misses_.data();
+        if (use_fixed) batch.misses_camera_fixed = batch_misses_.data();
         scene.TraceBatch(batch, batch_hits_.data());
         for (int r = 0; r < queued; ++r) sample_hits_[batch_slots_[r]] = batch_hits_[r];
       }
+      if (queued_surface > 0) {
+        scene.ShadeSurface(batch_surface_.data(), queued_surface, batch_surface_hits_.data());
+        for (int r = 0; r < queued_surface; ++r) {
+          sample_hits_[batch_surface_slots_[r]] = batch_surface_hits_[r];
+        }
+      }
       queued = 0;
+      queued_surface = 0;
     };
     const int last = s - 1;
     const int k10 = last, k01 = last * s, k11 = last * s + last;
     std::array<const Ray*, kBatchPixels> exacts;
+    std::array<const KeptSample*, kBatchPixels> kepts;
+    std::array<uint8_t, kBatchPixels> modes;
     std::array<bool, kBatchPixels> settled;
-    size_t next_exact = 0;  // both lists ascend: walk them together
+    size_t next_exact = 0, next_kept = 0;  // the lists ascend with the edge pixels: walk them along
     for (size_t e0 = 0; e0 < edge_pixels_.size(); e0 += kBatchPixels) {
       const int batch_pixels =
           static_cast<int>(std::min<size_t>(kBatchPixels, edge_pixels_.size() - e0));
       for (int p = 0; p < batch_pixels; ++p) {
         const int i = edge_pixels_[e0 + p];
         const int u = i % w, v = i / w;
-        exacts[p] = ExactRaysOf(exact_pixels_, exact_rays_, ss, i, &next_exact);
-        for (const int k : {0, k10, k01, k11}) queue(p, i, u, v, k, exacts[p]);
+        modes[p] = use_fixed ? sample_mode_[i] : uint8_t{kSampleRays};
+        settled[p] = modes[p] == kSampleConstant;
+        if (settled[p]) {
+          radiance_[i] = constant_radiance_[i];
+          continue;
+        }
+        exacts[p] = modes[p] == kSampleInterpolated
+                        ? nullptr
+                        : ExactRaysOf(exact_pixels_, exact_rays_, ss, i, &next_exact);
+        kepts[p] = nullptr;
+        if (modes[p] == kSampleKept) {
+          while (kept_pixels_[next_kept] < i) ++next_kept;
+          kepts[p] = &kept_samples_[next_kept * static_cast<size_t>(ss)];
+        }
+        for (const int k : {0, k10, k01, k11}) queue(p, i, u, v, k, modes[p], exacts[p], kepts[p]);
       }
       trace_queue();
       for (int p = 0; p < batch_pixels; ++p) {
+        if (settled[p]) continue;
         const int i = edge_pixels_[e0 + p];
         const Hit* hits = &sample_hits_[static_cast<size_t>(p) * ss];
-        const Hit &c00 = hits[0], &c10 = hits[k10], &c01 = hits[k01], &c11 = hits[k11];
-        const double lo = std::min({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
-        const double hi = std::max({c00.radiance, c10.radiance, c01.radiance, c11.radiance});
-        settled[p] = c00.object == c10.object && c00.object == c01.object &&
-                     c00.object == c11.object && hi - lo <= options_.edge_radiance_step;
+        double mean = 0.0;
+        settled[p] = CornersSettle(hits, s, options_.edge_radiance_step, &mean);
         if (settled[p]) {
-          radiance_[i] = static_cast<float>(
-              0.25 * (c00.radiance + c10.radiance + c01.radiance + c11.radiance));
+          radiance_[i] = static_cast<float>(mean);
           continue;
         }
         const int u = i % w, v = i / w;
         for (int k = 0; k < ss; ++k) {
-          if (k != 0 && k != k10 && k != k01 && k != k11) queue(p, i, u, v, k, exacts[p]);
+          if (k != 0 && k != k10 && k != k01 && k != k11) {
+            queue(p, i, u, v, k, modes[p], exacts[p], kepts[p]);
+          }
         }
       }
       trace_queue();
       for (int p = 0; p < batch_pixels; ++p) {
         if (settled[p]) continue;
-        const Hit* hits = &sample_hits_[static_cast<size_t>(p) * ss];
-        double sum =
-            hits[0].radiance + hits[k10].radiance + hits[k01].radiance + hits[k11].radiance;
-        for (int k = 0; k < ss; ++k) {
-          if (k != 0 && k != k10 && k != k01 && k != k11) sum += hits[k].radiance;
-        }
-        radiance_[edge_pixels_[e0 + p]] = static_cast<float>(sum / ss);
+        radiance_[edge_pixels_[e0 + p]] =
+            static_cast<float>(BoxMean(&sample_hits_[static_cast<size_t>(p) * ss], s));
       }
     }
   }

@@ -46,6 +46,16 @@ class HalfSpaceScene final : public Scene {
   double lo_, hi_;
 };
 
+// A scene's Trace() alone: the default TraceBatch, no camera-fixed part. The reference frame.
+class TraceOnly final : public Scene {
+ public:
+  explicit TraceOnly(const Scene& inner) : inner_(inner) {}
+  Hit Trace(const Ray& ray) const override { return inner_.Trace(ray); }
+
+ private:
+  const Scene& inner_;
+};
+
 // An ideal pinhole (f = 200 px, 160×120) whose model domain ends at u = max_u: pixels beyond it
 // have no ray (kOutsideDomain), so the renderer must treat them as black background.
 class ClippedPinhole final : public CameraModel {
@@ -515,14 +525,7 @@ TEST(RendererTest, RendersThroughTraceBatchWithValidRaysOnlyAndTheSameBytes) {
     Renderer renderer(*c.camera, o);
     const BatchCheckingScene batching(*c.scene);
     // The reference: a scene with only Trace(), i.e. the default TraceBatch.
-    class TraceOnly final : public Scene {
-     public:
-      explicit TraceOnly(const Scene& inner) : inner_(inner) {}
-      Hit Trace(const Ray& ray) const override { return inner_.Trace(ray); }
-
-     private:
-      const Scene& inner_;
-    } reference(*c.scene);
+    const TraceOnly reference(*c.scene);
     Frame a = MakeFrame(*c.camera), b = MakeFrame(*c.camera);
     GroundTruth truth_a, truth_b;
     renderer.Render(batching, 3, a.view, &truth_a);
@@ -540,14 +543,14 @@ TEST(RendererTest, RendersThroughTraceBatchWithValidRaysOnlyAndTheSameBytes) {
 }
 
 // A disc fixed to the camera (z = 1, radius 0.2 about the optical axis: object 2) in front of a
-// half-space of the world (HalfSpaceScene): the disc is camera-fixed geometry (renderer.h).
-// Counts what the renderer asked and flagged.
+// half-space of the world (HalfSpaceScene): the disc is camera-fixed geometry (renderer.h), and a
+// ray that misses it sees the world (kWorld). Counts what the renderer asked and flagged.
 class CameraFixedDiscScene final : public Scene {
  public:
   CameraFixedDiscScene(const Eigen::Vector3d& n, double disc_radius)
       : world_(n, 0.2, 0.9), radius_(disc_radius) {}
   Hit Trace(const Ray& ray) const override {
-    return HitsDisc(ray.p_C_O, ray.d_C) ? Hit{0.05, 2, 1.0 / ray.d_C.z()} : world_.Trace(ray);
+    return HitsDisc(ray.p_C_O, ray.d_C) ? Disc(ray.d_C) : world_.Trace(ray);
   }
   void TraceBatch(const RayBatch& rays, Hit* hits) const override {
     for (int k = 0; k < rays.count; ++k) {
@@ -560,10 +563,16 @@ class CameraFixedDiscScene final : public Scene {
     }
   }
   uint64_t CameraFixedKey() const override { return 1000 + static_cast<uint64_t>(radius_ * 1e6); }
-  void MissesCameraFixed(const RayBatch& rays, uint8_t* out) const override {
+  void TraceCameraFixed(const RayBatch& rays, CameraFixedHit* out) const override {
     ++asked_;
     for (int k = 0; k < rays.count; ++k) {
-      out[k] = HitsDisc(rays.origins[rays.shared_origin ? 0 : k], rays.directions[k]) ? 0 : 1;
+      const Eigen::Vector3d& d = rays.directions[k];
+      if (HitsDisc(rays.origins[rays.shared_origin ? 0 : k], d)) {
+        out[k].kind = CameraFixedHit::kConstant;
+        out[k].hit = Disc(d);
+      } else {
+        out[k].kind = CameraFixedHit::kWorld;
+      }
     }
   }
   mutable long flagged_ = 0;
@@ -575,6 +584,7 @@ class CameraFixedDiscScene final : public Scene {
     const double t = (1.0 - o.z()) / d.z();
     return t > 0.0 && (o + t * d).head<2>().squaredNorm() <= radius_ * radius_;
   }
+  static Hit Disc(const Eigen::Vector3d& d) { return Hit{0.05, 2, 1.0 / d.z()}; }
   HalfSpaceScene world_;
   double radius_;
 };
@@ -586,14 +596,7 @@ TEST(RendererTest, CameraFixedGeometryIsAskedOncePerKeyAndTheFrameIsUnchanged) {
   Renderer renderer(camera, o);
   EXPECT_EQ(renderer.camera_fixed_key(), 0u);
   const CameraFixedDiscScene a(Eigen::Vector3d(0.3, -1.0, 0.1).normalized(), 0.2);
-  class TraceOnly final : public Scene {
-   public:
-    explicit TraceOnly(const Scene& inner) : inner_(inner) {}
-    Hit Trace(const Ray& ray) const override { return inner_.Trace(ray); }
-
-   private:
-    const Scene& inner_;
-  } reference(a);
+  const TraceOnly reference(a);
   Frame with = MakeFrame(camera), without = MakeFrame(camera);
   GroundTruth truth_with, truth_without;
   renderer.Render(a, 1, with.view, &truth_with);
@@ -601,9 +604,15 @@ TEST(RendererTest, CameraFixedGeometryIsAskedOncePerKeyAndTheFrameIsUnchanged) {
   EXPECT_EQ(with.pixels, without.pixels);
   EXPECT_EQ(truth_with.object, truth_without.object);
   EXPECT_EQ(truth_with.depth, truth_without.depth);
+  const Renderer::CameraFixedStatistics& stats = renderer.camera_fixed_statistics();
   EXPECT_EQ(renderer.camera_fixed_key(), a.CameraFixedKey());
-  EXPECT_GT(renderer.camera_fixed_miss_fraction(), 0.5);
-  EXPECT_LT(renderer.camera_fixed_miss_fraction(), 1.0);
+  EXPECT_EQ(stats.centres_on_surface, 0);
+  EXPECT_GT(stats.centres_constant, 1000);  // the disc
+  EXPECT_GT(stats.centres_traced, stats.centres_constant);
+  EXPECT_EQ(stats.centres_constant + stats.centres_traced, 200 * 150);
+  EXPECT_GT(stats.pixels_constant, 1000);  // inside the disc
+  EXPECT_GT(stats.pixels_traced, 10000);   // outside it
+  EXPECT_GT(stats.pixels_kept, 50);        // on its outline
   EXPECT_GT(a.flagged_, 10000);
   EXPECT_GT(std::count(truth_with.object.begin(), truth_with.object.end(), 2), 100);
   const long asked = a.asked_;
@@ -623,6 +632,131 @@ TEST(RendererTest, CameraFixedGeometryIsAskedOncePerKeyAndTheFrameIsUnchanged) {
   renderer.Render(reference_c, 3, without.view, &truth_without);
   EXPECT_EQ(with.pixels, without.pixels);
   EXPECT_EQ(truth_with.object, truth_without.object);
+}
+
+// A floor fixed to the camera (the plane y_C = 0.5, the camera 0.5 m above it looking along it;
+// surface coordinates (x_C, z_C) of the hit) on which the world's texture moves: object 1
+// (radiance 0.8) where x_C + shift < 0, object 0 (0.2) elsewhere, so the texture's edge is the
+// image line u = cx − shift (v − cy) / 0.5. Above the horizon: constant sky (object 3). A small
+// disc fixed to the camera (object 2, z = 1, centre (−0.15, 0.25), radius 0.05) hides part of the
+// floor. Counts the renderer's calls.
+class CameraFixedFloorScene final : public Scene {
+ public:
+  explicit CameraFixedFloorScene(double shift) : shift_(shift) {}
+  Hit Trace(const Ray& ray) const override {
+    const CameraFixedHit fixed = Fixed(ray.d_C);
+    if (fixed.kind != CameraFixedHit::kSurface) return fixed.hit;
+    Hit hit = fixed.hit;
+    Shade(fixed.surface, &hit);
+    return hit;
+  }
+  void TraceBatch(const RayBatch& rays, Hit* hits) const override {
+    traced_ += rays.count;
+    Scene::TraceBatch(rays, hits);
+  }
+  uint64_t CameraFixedKey() const override { return 77; }
+  void TraceCameraFixed(const RayBatch& rays, CameraFixedHit* out) const override {
+    ++asked_;
+    for (int k = 0; k < rays.count; ++k) out[k] = Fixed(rays.directions[k]);
+  }
+  void ShadeSurface(const Eigen::Vector2d* points, int count, Hit* hits) const override {
+    shaded_ += count;
+    for (int k = 0; k < count; ++k) Shade(points[k], &hits[k]);
+  }
+  mutable long asked_ = 0, traced_ = 0, shaded_ = 0;
+
+ private:
+  CameraFixedHit Fixed(const Eigen::Vector3d& d) const {  // the camera is at the origin
+    CameraFixedHit out;
+    out.kind = CameraFixedHit::kConstant;
+    if (d.z() > 0.0) {
+      const Eigen::Vector3d p = d / d.z();
+      if ((p.head<2>() - Eigen::Vector2d(-0.15, 0.25)).squaredNorm() <= 0.05 * 0.05) {
+        out.hit = Hit{0.05, 2, 1.0 / d.z()};
+        return out;
+      }
+    }
+    if (!(d.y() > 0.0)) {
+      out.hit = Hit{0.5, 3, kInf};
+      return out;
+    }
+    const double t = 0.5 / d.y();
+    out.kind = CameraFixedHit::kSurface;
+    out.surface = Eigen::Vector2d(t * d.x(), t * d.z());
+    out.hit.depth = t;
+    return out;
+  }
+  void Shade(const Eigen::Vector2d& p, Hit* hit) const {
+    const bool left = p.x() + shift_ < 0.0;
+    hit->object = left ? 1 : 0;
+    hit->radiance = left ? 0.8 : 0.2;
+  }
+  double shift_;
+};
+
+TEST(RendererTest, CameraFixedSurfaceIsShadedNotTracedAndItsEdgesLieWhereTheModelSays) {
+  const PinholeBrownCamera camera = Pinhole(200, 150, 180.0);
+  const auto& k = camera.parameters();
+  RenderOptions o;
+  o.supersampling = 4;
+  Renderer renderer(camera, o);
+  Frame f = MakeFrame(camera), ray_traced = MakeFrame(camera);
+  GroundTruth truth, ray_truth;
+  const double kLo = std::round(0.2 * 255), kHi = std::round(0.8 * 255);
+  double max_error = 0.0, max_ray_error = 0.0;
+  std::vector<long> asked;
+  for (const double shift : {-0.031, 0.0123, 0.047}) {
+    const CameraFixedFloorScene scene(shift);
+    const long allocations = kinevis::testing::ThreadAllocations();
+    renderer.Render(scene, 1, f.view, &truth);
+    if (!asked.empty()) {  // the same key: nothing asked, nothing allocated
+      EXPECT_EQ(kinevis::testing::ThreadAllocations() - allocations, 0);
+    }
+    // Every pixel from the kept answers: nothing traced; asked for the first scene only.
+    EXPECT_EQ(scene.traced_, 0);
+    EXPECT_GT(scene.shaded_, 200 * 75);
+    asked.push_back(scene.asked_);
+    // The same scene traced ray by ray: the same ground truth, and the same frame but where a
+    // sample lies within the verified interpolation error of an edge.
+    const TraceOnly reference(scene);
+    renderer.Render(reference, 1, ray_traced.view, &ray_truth);
+    // The texture's edge, row by row below the horizon (the disc is far to its left), in both.
+    for (int v = static_cast<int>(k.cy) + 8; v < camera.height() - 2; ++v) {
+      const double u_true = k.cx - shift * (v - k.cy) / 0.5;
+      const int c = static_cast<int>(std::floor(u_true));
+      max_error = std::max(max_error, std::abs(EdgeAlongRow(f.pixels, camera.width(), v, c - 3,
+                                                            c + 4, kLo, kHi, false) -
+                                               u_true));
+      max_ray_error =
+          std::max(max_ray_error, std::abs(EdgeAlongRow(ray_traced.pixels, camera.width(), v, c - 3,
+                                                        c + 4, kLo, kHi, false) -
+                                           u_true));
+    }
+    EXPECT_EQ(truth.object, ray_truth.object);
+    EXPECT_EQ(truth.depth, ray_truth.depth);
+    int different = 0;
+    for (size_t i = 0; i < f.pixels.size(); ++i) different += f.pixels[i] != ray_traced.pixels[i];
+    EXPECT_LE(different, renderer.last_edge_pixels() / 100);
+  }
+  // One key: asked for the first scene only (a batch per run of a row and per pixel).
+  EXPECT_GT(asked[0], 0);
+  EXPECT_EQ(asked[1], 0);
+  EXPECT_EQ(asked[2], 0);
+  // The anti-aliasing bound (StraightEdgeLiesWhereTheModelSays...), and as close as the frame
+  // traced ray by ray.
+  EXPECT_LT(max_error, 0.5 / 4 + 0.01);
+  EXPECT_LT(max_error, max_ray_error + 0.01);
+  std::printf("camera-fixed surface edge: max error %.4f px (traced ray by ray %.4f; bound %.4f)\n",
+              max_error, max_ray_error, 0.5 / 4 + 0.01);
+  const Renderer::CameraFixedStatistics& stats = renderer.camera_fixed_statistics();
+  EXPECT_EQ(stats.centres_traced, 0);
+  EXPECT_GT(stats.centres_on_surface, 200 * 70);
+  EXPECT_GT(stats.centres_constant, 200 * 70);  // sky and disc
+  EXPECT_GT(stats.pixels_interpolated, 200 * 60);
+  EXPECT_GT(stats.pixels_kept, 100);  // the horizon and the disc's outline
+  EXPECT_GT(stats.pixels_constant, 200 * 60);
+  EXPECT_EQ(stats.pixels_traced, 0);
+  EXPECT_LE(stats.max_surface_error_px, Renderer::kMaxRayInterpolationErrorPx);
 }
 
 }  // namespace

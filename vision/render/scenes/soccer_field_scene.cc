@@ -264,8 +264,7 @@ SoccerFieldScene::SoccerFieldScene(const HyperbolicMirrorCamera& camera,
     }
   }
 
-  // Key of the camera-fixed geometry (renderer.h): FNV-1a over everything TraceCameraFixed()
-  // reads.
+  // Key of the camera-fixed part (renderer.h): FNV-1a over everything TraceFixed() reads.
   uint64_t key = 0xcbf29ce484222325ULL;
   auto mix = [&key](double x) {
     unsigned char bytes[sizeof x];
@@ -280,6 +279,10 @@ SoccerFieldScene::SoccerFieldScene(const HyperbolicMirrorCamera& camera,
   mix(parameters.lens_radius);
   mix(parameters.body_radius);
   mix(parameters.body_height);
+  mix(parameters.post_radiance);
+  mix(parameters.lens_radiance);
+  mix(parameters.body_radiance);
+  mix(parameters.surroundings_radiance);
   mix(incoming_post_cull_radius2_);
   mix(lens_length_);
   mix(body_length_);
@@ -342,8 +345,10 @@ FieldPoint SoccerFieldScene::ClassifyGround(const Eigen::Vector2d& p_G_xy) const
   return out;
 }
 
-inline __attribute__((always_inline)) bool SoccerFieldScene::TraceCameraFixed(
-    const Eigen::Vector3d& o, const Eigen::Vector3d& d, double* t_out, int* object_out) const {
+inline __attribute__((always_inline)) bool SoccerFieldScene::TraceRobot(const Eigen::Vector3d& o,
+                                                                        const Eigen::Vector3d& d,
+                                                                        double* t_out,
+                                                                        int* object_out) const {
   const SoccerFieldSceneParameters& p = parameters_;
   Ray ray_C;  // for the primitives
   ray_C.p_C_O = o;
@@ -461,12 +466,11 @@ inline __attribute__((always_inline)) bool SoccerFieldScene::TraceCameraFixed(
   return false;
 }
 
-template <bool kCameraFixed>
-inline __attribute__((always_inline)) Hit SoccerFieldScene::TraceRay(
+inline __attribute__((always_inline)) CameraFixedHit SoccerFieldScene::TraceFixed(
     const Eigen::Vector3d& o, const Eigen::Vector3d& d) const {
   const SoccerFieldSceneParameters& p = parameters_;
   // IntersectPlane(ray, body_bottom_C_, body_axis_C_), inlined (the same expressions) and first,
-  // so that its division overlaps the camera-fixed tests.
+  // so that its division overlaps the robot's tests.
   double t_ground = kNoHit;
   {
     const double denom = body_axis_C_.dot(d);
@@ -475,88 +479,91 @@ inline __attribute__((always_inline)) Hit SoccerFieldScene::TraceRay(
       if (t > 1e-9) t_ground = t;
     }
   }
-  Hit hit;
+  CameraFixedHit out;
+  out.kind = CameraFixedHit::kConstant;
   double best = kNoHit;
   int object = kFieldSurroundings;
-  if constexpr (kCameraFixed) {
-    if (TraceCameraFixed(o, d, &best, &object)) {  // a post hides the mirror point
-      hit.radiance = p.post_radiance;
-      hit.object = kFieldMirrorPost;
-      hit.depth = 0.0;
-      return hit;
-    }
+  if (TraceRobot(o, d, &best, &object)) {  // a post hides the mirror point
+    out.hit = Hit{p.post_radiance, kFieldMirrorPost, 0.0};
+    return out;
   }
-  // The ground last: ties keep the camera-fixed hit, as in the original order of tests.
-  const bool ground_nearest = t_ground < best;
-  if (ground_nearest) {
-    best = t_ground;
-    object = kFieldCarpet;
+  // The ground last: ties keep the robot's hit, as in the original order of tests.
+  if (t_ground < best) {
+    // The ground point in G (x and y only; Eigen's Isometry product goes through 4×4).
+    const Eigen::Vector3d p_C = o + t_ground * d;
+    out.kind = CameraFixedHit::kSurface;
+    out.surface = Eigen::Vector2d(R_GC_xy_.row(0).dot(p_C) + t_GC_xy_.x(),
+                                  R_GC_xy_.row(1).dot(p_C) + t_GC_xy_.y());
+    out.hit.depth = t_ground;
+    return out;
   }
-  hit.depth = best;
+  out.hit.depth = best;
+  out.hit.object = object;
   switch (object) {
     case kFieldMirrorPost:
-      hit.radiance = p.post_radiance;
+      out.hit.radiance = p.post_radiance;
       break;
     case kFieldLensBody:
-      hit.radiance = p.lens_radiance;
+      out.hit.radiance = p.lens_radiance;
       break;
     case kFieldRobotBody:
-      hit.radiance = p.body_radiance;
-      break;
-    case kFieldSurroundings:
-      hit.radiance = p.surroundings_radiance;
+      out.hit.radiance = p.body_radiance;
       break;
     default:
+      out.hit.radiance = p.surroundings_radiance;
       break;
   }
-  if (ground_nearest) {
-    // As ClassifyGround(), with the line distances only for the lines near the point, and the
-    // transforms C → G → F written out (x and y only; Eigen's Isometry product goes through 4×4).
-    const Eigen::Vector3d p_C = o + t_ground * d;
-    const double x_G = R_GC_xy_.row(0).dot(p_C) + t_GC_xy_.x();
-    const double y_G = R_GC_xy_.row(1).dot(p_C) + t_GC_xy_.y();
-    const Eigen::Vector2d p_F(R_FG_xy_(0, 0) * x_G + R_FG_xy_(0, 1) * y_G + p.robot_x,
-                              R_FG_xy_(1, 0) * x_G + R_FG_xy_(1, 1) * y_G + p.robot_y);
-    const bool on_carpet = std::abs(p_F.x()) <= 0.5 * p.field_length + p.carpet_border &&
-                           std::abs(p_F.y()) <= 0.5 * p.field_width + p.carpet_border;
-    if (!on_carpet) {
-      object = kFieldFloor;
-      hit.radiance = p.floor_radiance;
-    } else if (OnLine(p_F)) {
-      object = kFieldLine;
-      hit.radiance = p.line_radiance;
-    } else {
-      object = kFieldCarpet;
-      hit.radiance = p.carpet_radiance;
-    }
+  return out;
+}
+
+inline __attribute__((always_inline)) void SoccerFieldScene::ShadeGround(const Eigen::Vector2d& p_G,
+                                                                         Hit* hit) const {
+  // As ClassifyGround(), with the line distances only for the lines near the point, and G → F
+  // written out.
+  const SoccerFieldSceneParameters& p = parameters_;
+  const double x_G = p_G.x(), y_G = p_G.y();
+  const Eigen::Vector2d p_F(R_FG_xy_(0, 0) * x_G + R_FG_xy_(0, 1) * y_G + p.robot_x,
+                            R_FG_xy_(1, 0) * x_G + R_FG_xy_(1, 1) * y_G + p.robot_y);
+  const bool on_carpet = std::abs(p_F.x()) <= 0.5 * p.field_length + p.carpet_border &&
+                         std::abs(p_F.y()) <= 0.5 * p.field_width + p.carpet_border;
+  if (!on_carpet) {
+    hit->object = kFieldFloor;
+    hit->radiance = p.floor_radiance;
+  } else if (OnLine(p_F)) {
+    hit->object = kFieldLine;
+    hit->radiance = p.line_radiance;
+  } else {
+    hit->object = kFieldCarpet;
+    hit->radiance = p.carpet_radiance;
   }
-  hit.object = object;
-  return hit;
 }
 
 Hit SoccerFieldScene::Trace(const Ray& ray_C) const {
-  return TraceRay<true>(ray_C.p_C_O, ray_C.d_C);
+  const CameraFixedHit fixed = TraceFixed(ray_C.p_C_O, ray_C.d_C);
+  Hit hit = fixed.hit;
+  if (fixed.kind == CameraFixedHit::kSurface) ShadeGround(fixed.surface, &hit);
+  return hit;
 }
 
-// Trace() inlined into one loop over the batch (no virtual call or Ray copy per ray); rays the
-// renderer flagged as missing the camera-fixed geometry are traced against the ground only.
+// Trace() inlined into one loop over the batch (no virtual call or Ray copy per ray). The scene
+// answers no ray kWorld, so the renderer's flags are never set for it.
 void SoccerFieldScene::TraceBatch(const RayBatch& rays, Hit* hits) const {
-  const uint8_t* misses = rays.misses_camera_fixed;
   for (int k = 0; k < rays.count; ++k) {
-    const Eigen::Vector3d& o = rays.origins[rays.shared_origin ? 0 : k];
-    hits[k] = misses != nullptr && misses[k] ? TraceRay<false>(o, rays.directions[k])
-                                             : TraceRay<true>(o, rays.directions[k]);
+    const CameraFixedHit fixed =
+        TraceFixed(rays.origins[rays.shared_origin ? 0 : k], rays.directions[k]);
+    hits[k] = fixed.hit;
+    if (fixed.kind == CameraFixedHit::kSurface) ShadeGround(fixed.surface, &hits[k]);
   }
 }
 
-void SoccerFieldScene::MissesCameraFixed(const RayBatch& rays, uint8_t* out) const {
+void SoccerFieldScene::TraceCameraFixed(const RayBatch& rays, CameraFixedHit* out) const {
   for (int k = 0; k < rays.count; ++k) {
-    double t = kNoHit;
-    int object = kFieldSurroundings;
-    const bool hidden =
-        TraceCameraFixed(rays.origins[rays.shared_origin ? 0 : k], rays.directions[k], &t, &object);
-    out[k] = !hidden && !(t < kNoHit) ? 1 : 0;
+    out[k] = TraceFixed(rays.origins[rays.shared_origin ? 0 : k], rays.directions[k]);
   }
+}
+
+void SoccerFieldScene::ShadeSurface(const Eigen::Vector2d* points_G, int count, Hit* hits) const {
+  for (int k = 0; k < count; ++k) ShadeGround(points_G[k], &hits[k]);
 }
 
 }  // namespace kinevis::vision::render

@@ -119,11 +119,15 @@ class SoccerFieldScene final : public Scene {
 
   Hit Trace(const Ray& ray_C) const override;
   void TraceBatch(const RayBatch& rays, Hit* hits) const override;  // exactly Trace() per ray
-  // The robot's body, lens body and mirror posts ride with the camera (renderer.h): the key is a
-  // hash of their geometry in C; a ray misses them when neither the pinhole → mirror segment nor
-  // the reflected ray meets any of them. Rays flagged so are traced against the ground only.
+  // The camera-fixed part (renderer.h): the robot's body, lens body and mirror posts ride with the
+  // camera, and the robot moves in the ground plane, so every ray sees the same part of the robot,
+  // or meets the ground at the same point of G, in every frame. The key is a hash of that geometry
+  // in C and of the robot's radiances; a ray that sees the robot, or nothing, is kConstant, one
+  // that meets the ground is kSurface with surface = (x_G, y_G) (m); ShadeSurface() says what lies
+  // at a ground point for this scene's robot pose (line, carpet or floor).
   uint64_t CameraFixedKey() const override { return camera_fixed_key_; }
-  void MissesCameraFixed(const RayBatch& rays, uint8_t* out) const override;
+  void TraceCameraFixed(const RayBatch& rays, CameraFixedHit* out) const override;
+  void ShadeSurface(const Eigen::Vector2d* points_G, int count, Hit* hits) const override;
 
   const SoccerFieldSceneParameters& parameters() const { return parameters_; }
   const Eigen::Isometry3d& X_CG() const { return X_CG_; }
@@ -190,15 +194,15 @@ class SoccerFieldScene final : public Scene {
   // on_line of ClassifyGround() for a point on the carpet, through the grid.
   bool OnLine(const Eigen::Vector2d& p_F) const;
   uint64_t camera_fixed_key_ = 0;
-  // The camera-fixed part of Trace(): the nearest hit of posts, lens body and robot body on the
+  // The robot's part of Trace(): the nearest hit of posts, lens body and robot body on the
   // reflected ray (*t, *object; kNoHit and kFieldSurroundings for none). True when a post hides
   // the mirror point (the pinhole → mirror segment meets it): the hit is then that post.
-  bool TraceCameraFixed(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double* t,
-                        int* object) const;
-  // Trace() of the ray from o along d (both in C); kCameraFixed false: the ray is known to miss
-  // the camera-fixed geometry (MissesCameraFixed), which is then not tested.
-  template <bool kCameraFixed>
-  Hit TraceRay(const Eigen::Vector3d& o, const Eigen::Vector3d& d) const;
+  bool TraceRobot(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double* t, int* object) const;
+  // The camera-fixed part of Trace() of the ray from o along d (both in C): the robot's hit, the
+  // surroundings, or the ground point (x_G, y_G).
+  CameraFixedHit TraceFixed(const Eigen::Vector3d& o, const Eigen::Vector3d& d) const;
+  // Radiance and object of the ground at (x_G, y_G) for this robot pose (hit->depth untouched).
+  void ShadeGround(const Eigen::Vector2d& p_G, Hit* hit) const;
 };
 
 }  // namespace kinevis::vision::render
