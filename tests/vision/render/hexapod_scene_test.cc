@@ -544,5 +544,44 @@ TEST(HexapodSceneTest, LegsNeverReachMoreThanARadiusBeyondTheirJoints) {
   EXPECT_EQ(probes, 6 * 24 * 8);
 }
 
+// TraceBatch (the trace inlined into one loop) gives exactly Trace()'s hits, for rays from the
+// origin of C (a central camera: one shared origin, the cones and the plates' shortcuts), from
+// another shared origin, and from one origin per ray; every object is hit somewhere.
+TEST(HexapodSceneTest, TraceBatchEqualsTraceForEveryKindOfOrigin) {
+  const HexapodScene scene(robots::HexapodModel::Default(), TestPose(), UnifiedX_CB());
+  std::mt19937 rng(3);
+  std::normal_distribution<double> gauss(0.0, 1.0);
+  std::uniform_real_distribution<double> offset(-0.05, 0.05);
+  const int n = 60000;
+  std::vector<Eigen::Vector3d> directions(n), origins(n);
+  for (int k = 0; k < n; ++k) {
+    directions[k] = Eigen::Vector3d(gauss(rng), gauss(rng), gauss(rng)).normalized();
+    origins[k] = Eigen::Vector3d(offset(rng), offset(rng), offset(rng));
+  }
+  const Eigen::Vector3d zero = Eigen::Vector3d::Zero(), elsewhere(0.01, -0.02, 0.005);
+  std::set<int> objects;
+  for (int kind = 0; kind < 3; ++kind) {
+    RayBatch batch;
+    batch.directions = directions.data();
+    batch.count = n;
+    batch.shared_origin = kind < 2;
+    batch.origins = kind == 0 ? &zero : kind == 1 ? &elsewhere : origins.data();
+    std::vector<Hit> hits(n);
+    scene.TraceBatch(batch, hits.data());
+    int different = 0;
+    for (int k = 0; k < n; ++k) {
+      Ray ray;
+      ray.p_C_O = batch.origins[batch.shared_origin ? 0 : k];
+      ray.d_C = directions[k];
+      const Hit one = scene.Trace(ray);
+      objects.insert(one.object);
+      different += one.object != hits[k].object || one.radiance != hits[k].radiance ||
+                   !(one.depth == hits[k].depth);
+    }
+    EXPECT_EQ(different, 0) << "origin kind " << kind;
+  }
+  EXPECT_EQ(objects.size(), 9u);  // background, six legs, two plates
+}
+
 }  // namespace
 }  // namespace kinevis::vision::render

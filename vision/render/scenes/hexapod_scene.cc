@@ -233,27 +233,32 @@ bool HexapodScene::InsideCuts(const Leg& leg, const Eigen::Vector3d& p_C) {
          leg.cut_normal[1].dot(p_C) <= leg.cut_offset[1];
 }
 
-int HexapodScene::TracePlate(const Plate& plate, int id, const Ray& ray_C, double* t_best) const {
+inline __attribute__((always_inline)) int HexapodScene::TracePlate(const Plate& plate, int id,
+                                                                   const Eigen::Vector3d& o,
+                                                                   const Eigen::Vector3d& d,
+                                                                   bool central_at_origin,
+                                                                   double* t_best) const {
   // Two-sided disc (IntersectDisc, inlined: this runs for every pixel).
   // (The bounding cone was tested by the caller.)
-  const double denom = plate.normal.dot(ray_C.d_C);
+  const double denom = plate.normal.dot(d);
   if (std::abs(denom) < 1e-15) return 0;
-  const double num = plate.n_dot_c - plate.normal.dot(ray_C.p_C_O);
-  // t = num / denom must lie in (1e-9, t_best): tested without dividing first.
+  // For a ray from the origin normal · o is 0 exactly.
+  const double num = central_at_origin ? plate.n_dot_c : plate.n_dot_c - plate.normal.dot(o);
+  // t = num / denom must lie in (1e-9, t_best): tested without dividing first. A ray moving away
+  // from the plane (num and denom of opposite signs, or num = 0) fails the first test: rejected
+  // before it (half the rays for each plate).
+  if (!(num * denom > 0.0)) return 0;
   const double sign = denom > 0.0 ? 1.0 : -1.0;
   if (!(sign * num > 1e-9 * sign * denom) || !(sign * num < *t_best * sign * denom)) return 0;
   const double t = num / denom;
-  if ((ray_C.p_C_O + t * ray_C.d_C - plate.centre).squaredNorm() > plate.radius * plate.radius) {
-    return 0;
-  }
+  if ((o + t * d - plate.centre).squaredNorm() > plate.radius * plate.radius) return 0;
   *t_best = t;
   return id;
 }
 
-Hit HexapodScene::Trace(const Ray& ray_C) const {
-  const Eigen::Vector3d& o = ray_C.p_C_O;
-  const Eigen::Vector3d& d = ray_C.d_C;
-  const bool central_at_origin = o.x() == 0.0 && o.y() == 0.0 && o.z() == 0.0;
+inline __attribute__((always_inline)) Hit HexapodScene::TraceRay(const Eigen::Vector3d& o,
+                                                                 const Eigen::Vector3d& d,
+                                                                 bool central_at_origin) const {
   const double r2 = radius_ * radius_;
   double t_best = kNoHit;
   int best = 0;
@@ -281,8 +286,9 @@ Hit HexapodScene::Trace(const Ray& ray_C) const {
 #endif
     if (inside == 0) return Hit{options_.background_radiance, 0, kNoHit};
   }
-  for (int j = 0; j < robots::kHexapodLegs; ++j) {
-    if (!(inside & (1u << j))) continue;
+  // The legs whose cones hold the ray, in ascending order (ties keep the first).
+  for (unsigned legs = inside & ((1u << robots::kHexapodLegs) - 1); legs != 0; legs &= legs - 1) {
+    const int j = __builtin_ctz(legs);
     const Leg& leg = legs_[j];
     // Early out: the ray's line must pass within R of the axis' line,
     // |(o − a) · (d × w)| <= R |d × w|, i.e. (d · (w × (o − a)))² <= R² (1 − (d · w)²).
@@ -338,11 +344,11 @@ Hit HexapodScene::Trace(const Ray& ray_C) const {
   }
   int plate = 0;
   if (options_.base_plate && (inside & (1u << robots::kHexapodLegs))) {
-    const int id = TracePlate(base_, kBasePlateId, ray_C, &t_best);
+    const int id = TracePlate(base_, kBasePlateId, o, d, central_at_origin, &t_best);
     if (id) plate = id;
   }
   if (options_.platform_plate && (inside & (1u << (robots::kHexapodLegs + 1)))) {
-    const int id = TracePlate(platform_, kPlatformPlateId, ray_C, &t_best);
+    const int id = TracePlate(platform_, kPlatformPlateId, o, d, central_at_origin, &t_best);
     if (id) plate = id;
   }
   if (plate != 0) return Hit{options_.plate_radiance, plate, t_best};
@@ -354,6 +360,30 @@ Hit HexapodScene::Trace(const Ray& ray_C) const {
   const double radiance =
       options_.leg_ambient + options_.leg_diffuse * std::max(0.0, normal.dot(light_C_));
   return Hit{radiance, best, t_best};
+}
+
+Hit HexapodScene::Trace(const Ray& ray_C) const {
+  const Eigen::Vector3d& o = ray_C.p_C_O;
+  return TraceRay(ray_C.p_C_O, ray_C.d_C, o.x() == 0.0 && o.y() == 0.0 && o.z() == 0.0);
+}
+
+// Trace() inlined into one loop (no virtual call or Ray copy per ray); a shared origin is tested
+// for the origin of C once.
+void HexapodScene::TraceBatch(const RayBatch& rays, Hit* hits) const {
+  if (rays.shared_origin) {
+    const Eigen::Vector3d& o = rays.origins[0];
+    const bool central_at_origin = o.x() == 0.0 && o.y() == 0.0 && o.z() == 0.0;
+    if (central_at_origin) {
+      for (int k = 0; k < rays.count; ++k) hits[k] = TraceRay(o, rays.directions[k], true);
+    } else {
+      for (int k = 0; k < rays.count; ++k) hits[k] = TraceRay(o, rays.directions[k], false);
+    }
+    return;
+  }
+  for (int k = 0; k < rays.count; ++k) {
+    const Eigen::Vector3d& o = rays.origins[k];
+    hits[k] = TraceRay(o, rays.directions[k], o.x() == 0.0 && o.y() == 0.0 && o.z() == 0.0);
+  }
 }
 
 }  // namespace kinevis::vision::render

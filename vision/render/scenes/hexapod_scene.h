@@ -82,6 +82,7 @@ class HexapodScene final : public Scene {
                const Eigen::Isometry3d& X_CB, const HexapodSceneOptions& options = {});
 
   Hit Trace(const Ray& ray_C) const override;
+  void TraceBatch(const RayBatch& rays, Hit* hits) const override;  // exactly Trace() per ray
 
   // Leg j's end points in C (m), j = 0..5.
   const Eigen::Vector3d& p_C_A(int leg) const { return legs_[leg].a; }
@@ -126,8 +127,12 @@ class HexapodScene final : public Scene {
   };
   // Whether a point on leg's cylinder lies within the leg's ends.
   static bool InsideCuts(const Leg& leg, const Eigen::Vector3d& p_C);
-  // Nearest plate hit with t < *t_best (updates it); returns the plate's id or 0.
-  int TracePlate(const Plate& plate, int id, const Ray& ray_C, double* t_best) const;
+  // Nearest plate hit with t < *t_best (updates it) of the ray from o along d (in C); returns the
+  // plate's id or 0. central_at_origin: o is the origin of C.
+  int TracePlate(const Plate& plate, int id, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                 bool central_at_origin, double* t_best) const;
+  // Trace() of the ray from o along d (in C).
+  Hit TraceRay(const Eigen::Vector3d& o, const Eigen::Vector3d& d, bool central_at_origin) const;
   HexapodSceneOptions options_;
   double radius_ = 0.0;
   std::array<Leg, robots::kHexapodLegs> legs_;
