@@ -150,7 +150,7 @@ void BM_DiamondMarker1280x640(benchmark::State& state) {
   pp.cy = 319.5;
   const PinholeBrownCamera camera(pp);
   DiamondMarkerSceneParameters p;
-  p.X_CO = DiamondCameraPose(0.45).inverse();
+  p.X_CO = DiamondCameraPose(0.45);  // X_CO (the pose of O in C), as the header says
   p.p_O_T = Eigen::Vector3d(0.0, 0.1414, 0.1414);
   const DiamondMarkerScene scene(p);
   RenderLoop(state, camera, scene, Options(state.range(0) != 0));
