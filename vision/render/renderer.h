@@ -100,9 +100,9 @@ class Scene {
   virtual uint64_t CameraFixedKey() const { return 0; }
   virtual void TraceCameraFixed(const RayBatch& rays, CameraFixedHit* out) const;
   // hits[k].radiance and .object of the camera-fixed surface at points[k] in this frame (.depth is
-  // not read). Called only with points a TraceCameraFixed() answer (kSurface) gave, or bilinear
-  // interpolations of four of them (Renderer, sub-samples). The default aborts: a scene that
-  // answers kSurface overrides it.
+  // not read). Called only with points a TraceCameraFixed() answer (kSurface) gave, or
+  // biquadratic interpolations of nine of them (Renderer, sub-samples). The default aborts: a
+  // scene that answers kSurface overrides it.
   virtual void ShadeSurface(const Eigen::Vector2d* points, int count, Hit* hits) const;
 };
 
