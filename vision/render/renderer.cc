@@ -133,6 +133,18 @@ const Ray* ExactRaysOf(const std::vector<int>& exact_pixels, const std::vector<R
              : nullptr;
 }
 
+// Whether a pixel centre in the 3×3 neighbourhood of (u, v) has a ray (directions: the cached
+// pixel-centre rays, zero where there is none): only such a pixel can become an edge pixel, whose
+// sub-samples are traced (a pixel with none around sees uniform black background).
+bool RayAround(const std::vector<Eigen::Vector3d>& directions, int w, int h, int u, int v) {
+  for (int vv = std::max(v - 1, 0); vv <= std::min(v + 1, h - 1); ++vv) {
+    for (int uu = std::max(u - 1, 0); uu <= std::min(u + 1, w - 1); ++uu) {
+      if (directions[static_cast<size_t>(vv) * w + uu].squaredNorm() > 0.0) return true;
+    }
+  }
+  return false;
+}
+
 // The box filter over an edge pixel's s×s sample hits (Render, section 3), in two steps: whether
 // the four corner samples settle the pixel (same object, radiances within `step`), with their
 // mean; else the mean of all s² samples, summed corners first and the others in order.
@@ -320,13 +332,7 @@ Renderer::Renderer(const CameraModel& camera, const RenderOptions& options)
             cell_interpolable_[i - w - 1]) {
           continue;
         }
-        bool any_ray = false;
-        for (int dv = -1; dv <= 1; ++dv) {
-          for (int du = -1; du <= 1; ++du) {
-            any_ray = any_ray || directions_[i + dv * w + du].squaredNorm() > 0.0;
-          }
-        }
-        if (!any_ray) continue;
+        if (!RayAround(directions_, w, h, u, v)) continue;
         exact_pixels_.push_back(static_cast<int>(i));
         for (const SubSample& sub : subsamples_) {
           Ray ray;
@@ -537,15 +543,7 @@ void Renderer::PrepareCameraFixed(const Scene& scene) {
       for (int u = 0; u < w; ++u) {
         const int i = v * w + u;
         const Ray* exact = ExactRaysOf(exact_pixels_, exact_rays_, ss, i, &next_exact);
-        bool neighbour_ray = false;
-        for (int dv = -1; dv <= 1 && !neighbour_ray; ++dv) {
-          for (int du = -1; du <= 1 && !neighbour_ray; ++du) {
-            const int uu = u + du, vv = v + dv;
-            neighbour_ray = uu >= 0 && vv >= 0 && uu < w && vv < h &&
-                            directions_[static_cast<size_t>(vv) * w + uu].squaredNorm() > 0.0;
-          }
-        }
-        if (!neighbour_ray) continue;
+        if (!RayAround(directions_, w, h, u, v)) continue;
         int count = 0;
         for (int k = 0; k < ss; ++k) {
           CameraFixedHit& answer = answers[k];
@@ -587,7 +585,8 @@ void Renderer::PrepareCameraFixed(const Scene& scene) {
         }
         if (kinds[CameraFixedHit::kSurface] == ss) {
           // Interpolated on the surface if every sample's interpolated point is within
-          // kMaxRayInterpolationErrorPx of its own ray's, in pixels through the cell's Jacobian.
+          // kMaxRayInterpolationErrorPx of its own ray's, in pixels through the surface's
+          // central-difference Jacobian at the pixel.
           bool ok = u >= 1 && v >= 1 && u + 1 < w && v + 1 < h;
           for (int dv = -1; dv <= 1 && ok; ++dv) {
             for (int du = -1; du <= 1 && ok; ++du) {
