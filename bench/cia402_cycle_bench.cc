@@ -19,9 +19,9 @@
 #include <string>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/can/virtual_can_bus.h"
 #include "hal/canopen/canopen_master.h"
-#include "hal/common/clock.h"
 #include "hal/drive/cia402_can_drive.h"
 #include "hal/mock/canopen_drive_sim.h"
 
@@ -32,13 +32,13 @@ using namespace std::chrono_literals;
 
 // Simulated time that passes when the master sleeps on it; meanwhile the simulators are
 // serviced, and the wall time they take is accumulated so that it can be left out.
-class BenchClock final : public Clock {
+class BenchClock final : public common::Clock {
  public:
-  Duration Now() const override { return time_.Now(); }
-  void SleepUntil(Duration deadline) override {
+  common::Duration Now() const override { return time_.Now(); }
+  void SleepUntil(common::Duration deadline) override {
     const auto start = std::chrono::steady_clock::now();
     while (time_.Now() < deadline) {
-      time_.AdvanceTo(std::min(deadline, time_.Now() + Duration(50us)));
+      time_.AdvanceTo(std::min(deadline, time_.Now() + common::Duration(50us)));
       for (CanopenDriveSim* sim : sims_) sim->Service();
     }
     excluded_ += std::chrono::steady_clock::now() - start;
@@ -51,7 +51,7 @@ class BenchClock final : public Clock {
   }
 
  private:
-  SimulatedClock time_;
+  common::SimulatedClock time_;
   std::vector<CanopenDriveSim*> sims_;
   std::chrono::steady_clock::duration excluded_{};
 };
@@ -86,7 +86,7 @@ void BM_Cia402CspCycleSixDrives(benchmark::State& state) {
     state.SkipWithError("the drives did not enable");
     return;
   }
-  Duration next = clock.Now();
+  common::Duration next = clock.Now();
   uint64_t k = 0;
   double total_with_sims_s = 0;
   for (auto _ : state) {

@@ -13,6 +13,7 @@
 #include <thread>
 #include <vector>
 
+#include "common/units.h"
 #include "control/diamond/diamond_drives.h"
 #include "control/diamond/diamond_laws.h"
 #include "control/diamond/diamond_loop.h"
@@ -26,8 +27,6 @@ namespace {
 
 using namespace std::chrono_literals;
 using namespace kinevis;
-
-constexpr double kDeg = M_PI / 180.0;
 
 std::unique_ptr<vision::CameraModel> SeedCamera() {
   vision::PinholeBrownParameters p;
@@ -44,8 +43,8 @@ void BM_TaskPdLawStep(benchmark::State& state) {
   control::DiamondTaskPdLaw law(
       model, control::DiamondLine::SeedHorizontal(control::DiamondLineKind::kTopViewLine));
   Eigen::Vector2d q;
-  robots::InverseKinematics(model, {M_PI / 2, 50 * kDeg}, &q);
-  law.Start(q, hal::Duration{0});
+  robots::InverseKinematics(model, {M_PI / 2, 50 * common::kDeg}, &q);
+  law.Start(q, common::Duration{0});
   control::DiamondCycleInput in;
   in.dt = 0.001;
   in.q = q;
@@ -61,7 +60,7 @@ BENCHMARK(BM_TaskPdLawStep);
 void BM_SafetyForwardKinematicsTwice(benchmark::State& state) {
   const robots::DiamondModel model = robots::DiamondModel::APriori();
   Eigen::Vector2d q;
-  robots::InverseKinematics(model, {M_PI / 2, 50 * kDeg}, &q);
+  robots::InverseKinematics(model, {M_PI / 2, 50 * common::kDeg}, &q);
   robots::DiamondData a, b;
   for (auto _ : state) {
     q[0] += 1e-9;
@@ -73,7 +72,7 @@ BENCHMARK(BM_SafetyForwardKinematicsTwice);
 
 class NoFrames final : public control::MarkerFeatureSource {
  public:
-  bool Poll(hal::Duration, control::MarkerFrame*) override { return false; }
+  bool Poll(common::Duration, control::MarkerFrame*) override { return false; }
 };
 
 // The IBVS law for one frame: FK, the marker Jacobian, back-projection, vpServo's law.
@@ -85,7 +84,7 @@ void BM_MarkerServoCompute(benchmark::State& state) {
                                     &source);
   servo.SetTarget({600, 300});
   Eigen::Vector2d q;
-  robots::InverseKinematics(model, {95 * kDeg, 48 * kDeg}, &q);
+  robots::InverseKinematics(model, {95 * common::kDeg, 48 * common::kDeg}, &q);
   Eigen::Vector2d q_dot;
   for (auto _ : state) benchmark::DoNotOptimize(servo.Compute(q, {650, 320}, &q_dot));
 }
@@ -98,10 +97,10 @@ void DetectorBench(benchmark::State& state, bool windowed) {
   vision::render::Renderer renderer(*camera, o);
   vision::render::DiamondMarkerSceneParameters p;
   p.X_CO = vision::render::DiamondCameraPose(0.4462);
-  p.p_O_T = robots::DiamondToolPoint(0.2221, 95 * kDeg, 48 * kDeg);
+  p.p_O_T = robots::DiamondToolPoint(0.2221, 95 * common::kDeg, 48 * common::kDeg);
   std::vector<uint8_t> pixels(static_cast<size_t>(camera->width()) * camera->height());
-  vision::render::ImageView8 view{pixels.data(), camera->width(), camera->height(),
-                                  static_cast<size_t>(camera->width())};
+  vision::ImageView8 view{pixels.data(), camera->width(), camera->height(),
+                          static_cast<size_t>(camera->width())};
   vision::render::DiamondMarkerScene scene(p);
   renderer.Render(scene, 1, view);
   Eigen::Vector2d truth;

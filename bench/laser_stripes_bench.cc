@@ -22,8 +22,8 @@ struct Frame {
   int width = 0;
   int height = 0;
   std::vector<uint8_t> pixels;
-  render::ImageView8 view() {
-    return render::ImageView8{pixels.data(), width, height, static_cast<size_t>(width)};
+  vision::ImageView8 view() {
+    return vision::ImageView8{pixels.data(), width, height, static_cast<size_t>(width)};
   }
 };
 

@@ -63,7 +63,7 @@ std::vector<uint8_t> Render(const CameraModel& camera, const render::Scene& scen
   std::vector<uint8_t> pixels(static_cast<size_t>(camera.width()) * camera.height());
   render::Renderer renderer(camera, options);
   renderer.Render(scene, 0,
-                  render::ImageView8{pixels.data(), camera.width(), camera.height(),
+                  vision::ImageView8{pixels.data(), camera.width(), camera.height(),
                                      static_cast<size_t>(camera.width())});
   return pixels;
 }
@@ -73,7 +73,7 @@ void RunObserve(benchmark::State& state, const CameraModel& camera, const Eigen:
   const robots::HexapodModel model = robots::HexapodModel::Default();
   const render::HexapodScene scene(model, TestPose(), X_CB, scene_options);
   std::vector<uint8_t> pixels = Render(camera, scene);
-  const render::ImageView8 image{pixels.data(), camera.width(), camera.height(),
+  const vision::ImageView8 image{pixels.data(), camera.width(), camera.height(),
                                  static_cast<size_t>(camera.width())};
   const auto predictions = PredictLegs(model, TestPose(), X_CB);
   const LegEdgeOptions options;

@@ -13,11 +13,11 @@
 #include <memory>
 #include <vector>
 
+#include "common/clock.h"
 #include "control/hexapod/image_leg_features.h"
 #include "control/hexapod/leg_servo.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/camera/sim_camera.h"
-#include "hal/common/clock.h"
 #include "vision/camera/pinhole_camera.h"
 #include "vision/render/renderer.h"
 #include "vision/render/scenes/hexapod_scene.h"
@@ -113,11 +113,11 @@ void BM_FrameToLegRates1024(benchmark::State& state) {
   format.height = 768;
   format.pixel_format = hal::PixelFormat::kMono8;
   format.fps = 100;
-  hal::RegisterRenderSource("bench-frame", format, [&](uint64_t, hal::Duration, hal::Image* im) {
+  hal::RegisterRenderSource("bench-frame", format, [&](uint64_t, common::Duration, hal::Image* im) {
     for (int y = 0; y < 768; ++y) std::memcpy(im->row(y), frame.data() + y * 1024, 1024);
     return std::error_code();
   });
-  hal::SimulatedClock clock;
+  common::SimulatedClock clock;
   std::unique_ptr<hal::Camera> cam = hal::OpenCamera("sim:bench-frame", clock);
   cam->Open();
   cam->Start();

@@ -24,6 +24,7 @@ __attribute__((noinline)) void RenderFrames(Renderer& renderer, const Scene& sce
 
 int main(int argc, char** argv) {
   using namespace kinevis::vision::render;
+  using kinevis::vision::ImageView8;
   const std::string name = argc > 1 ? argv[1] : "";
   const bench::BenchScene s = bench::MakeBenchScene(name);
   const int frames = argc > 2 ? std::atoi(argv[2]) : 3;

@@ -41,7 +41,7 @@ BENCHMARK(BM_VirtualCanFanOut)->Arg(6);
 // With the 1 Mbit/s bit-rate model on a simulated clock: the cost of arbitration and wire-time
 // bookkeeping per frame.
 void BM_VirtualCanBitRateModel(benchmark::State& state) {
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   VirtualCanNetwork::Options o;
   o.bitrate = 1'000'000;
   o.clock = &clock;

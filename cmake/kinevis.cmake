@@ -7,11 +7,13 @@ function(kinevis_target_defaults target)
   target_compile_options(${target} PRIVATE ${KINEVIS_WARNINGS})
 endfunction()
 
-# kinevis_add_test(hal/can/can_frame_test [LIBS lib...] [LABELS l...] [TIMEOUT s])
+# kinevis_add_test(hal/can/can_frame_test [LIBS lib...] [LABELS l...] [TIMEOUT s] [RUN_SERIAL])
 # One line registers one test file: tests/<path>.cc becomes an executable whose GoogleTest
-# cases are discovered as individual ctest tests.
+# cases are discovered as individual ctest tests. ctest runs tests two at a time (scripts/test);
+# RUN_SERIAL marks a file whose cases must run alone (whole-program tests that hold real-time
+# loops to deadlines).
 function(kinevis_add_test path)
-  cmake_parse_arguments(ARG "" "TIMEOUT" "LIBS;LABELS" ${ARGN})
+  cmake_parse_arguments(ARG "RUN_SERIAL" "TIMEOUT" "LIBS;LABELS" ${ARGN})
   string(REPLACE "/" "_" target "${path}")
   add_executable(${target} ${PROJECT_SOURCE_DIR}/tests/${path}.cc)
   kinevis_target_defaults(${target})
@@ -22,6 +24,9 @@ function(kinevis_add_test path)
   set(properties TIMEOUT ${ARG_TIMEOUT} ENVIRONMENT "KINEVIS_BINARY_DIR=${PROJECT_BINARY_DIR}")
   if(ARG_LABELS)
     list(APPEND properties LABELS "${ARG_LABELS}")
+  endif()
+  if(ARG_RUN_SERIAL)
+    list(APPEND properties RUN_SERIAL TRUE)
   endif()
   gtest_discover_tests(${target}
     WORKING_DIRECTORY ${PROJECT_BINARY_DIR}

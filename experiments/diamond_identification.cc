@@ -35,6 +35,7 @@
 #include <string>
 #include <vector>
 
+#include "common/units.h"
 #include "robots/io/robot_description.h"
 #include "vision/camera/pinhole_camera.h"
 #include "vision/render/scenes/diamond_marker_scene.h"
@@ -44,8 +45,6 @@ using kv::calibration::DiamondIdentificationOptions;
 using kv::calibration::DiamondIdentificationSummary;
 
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
 
 struct Args {
   std::string truth = "robots/diamond/diamond_identified.yaml";
@@ -60,8 +59,8 @@ struct Args {
 
 Eigen::Isometry3d TrueCameraPose(const Args& a) {
   Eigen::Isometry3d X = kv::vision::render::DiamondCameraPose(a.distance).inverse();
-  X = Eigen::AngleAxisd(a.camera_error_deg * kDeg, Eigen::Vector3d::UnitZ()) * X;
-  X.linear() = X.linear() * Eigen::AngleAxisd(0.5 * a.camera_error_deg * kDeg,
+  X = Eigen::AngleAxisd(a.camera_error_deg * kv::common::kDeg, Eigen::Vector3d::UnitZ()) * X;
+  X.linear() = X.linear() * Eigen::AngleAxisd(0.5 * a.camera_error_deg * kv::common::kDeg,
                                               Eigen::Vector3d(1, -1, 0.5).normalized())
                                 .toRotationMatrix();
   return X;
@@ -94,8 +93,8 @@ int main(int argc, char** argv) {
     std::printf("(%s not found from here: using the built-in seed-identified set)\n",
                 a.truth.c_str());
   }
-  truth.joint_offsets[0] += 0.6 * kDeg;
-  truth.joint_offsets[1] -= 0.4 * kDeg;
+  truth.joint_offsets[0] += 0.6 * kv::common::kDeg;
+  truth.joint_offsets[1] -= 0.4 * kv::common::kDeg;
   const kv::robots::DiamondModel apriori = kv::robots::DiamondModel::APriori();
 
   kv::vision::PinholeBrownParameters p;
@@ -114,8 +113,8 @@ int main(int argc, char** argv) {
   std::printf(
       "truth R = %.4f m, alpha = %.4f, beta = %.4f rad, offsets (%.3f, %.3f) deg; start "
       "R = %.4f, alpha = beta = %.4f\n",
-      truth.radius, truth.alpha, truth.beta, truth.joint_offsets[0] / kDeg,
-      truth.joint_offsets[1] / kDeg, apriori.radius, apriori.alpha);
+      truth.radius, truth.alpha, truth.beta, truth.joint_offsets[0] / kv::common::kDeg,
+      truth.joint_offsets[1] / kv::common::kDeg, apriori.radius, apriori.alpha);
   std::printf(
       "camera 1280x640 f = %.0f px at %.4f m (mounted %.1f deg off nominal); %zu task "
       "points of a %dx%d grid seen\n\n",
@@ -162,8 +161,8 @@ int main(int argc, char** argv) {
           "%9.2e %9.2e %9.2e | %6.0f%s\n",
           mode == 0 ? "pixel" : "spherical", noise, samples, 100 * max_e[0], 100 * max_e[1],
           100 * max_e[2], 100 * std::sqrt(sq[0] / a.draws), 100 * std::sqrt(sq[1] / a.draws),
-          100 * std::sqrt(sq[2] / a.draws), 100 * sigma_r, 1e3 * max_dh / kDeg, task_rms.x(),
-          task_rms.y(), task_sup.x(), task_sup.y(), cond,
+          100 * std::sqrt(sq[2] / a.draws), 100 * sigma_r, 1e3 * max_dh / kv::common::kDeg,
+          task_rms.x(), task_rms.y(), task_sup.x(), task_sup.y(), cond,
           converged == a.draws ? "" : "  (not all converged)");
     }
   }

@@ -23,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "common/units.h"
 #include "control/diamond/diamond_drives.h"
 #include "control/diamond/diamond_laws.h"
 #include "control/diamond/diamond_loop.h"
@@ -46,8 +47,6 @@ struct Args {
   double period_ms = 1.0;
   std::string csv_dir;
 };
-
-constexpr double kDeg = M_PI / 180.0;
 
 }  // namespace
 
@@ -124,24 +123,25 @@ int main(int argc, char** argv) {
       return px;
     };
     Eigen::Vector2d target;
-    camera->Project(X_CO * robots::DiamondToolPoint(world.true_model().radius, targets[k][0] * kDeg,
-                                                    targets[k][1] * kDeg),
-                    &target);
+    camera->Project(
+        X_CO * robots::DiamondToolPoint(world.true_model().radius, targets[k][0] * common::kDeg,
+                                        targets[k][1] * common::kDeg),
+        &target);
     bool started = false;
-    hal::Duration next{0};
+    common::Duration next{0};
     uint64_t frame = 0;
-    const hal::Duration frame_period =
-        std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(1.0 / args.fps));
+    const common::Duration frame_period =
+        std::chrono::duration_cast<common::Duration>(std::chrono::duration<double>(1.0 / args.fps));
     control::DetectedMarkerSource source(
-        [&](hal::Duration now, vision::render::ImageView8* image, hal::Duration* stamp) {
+        [&](common::Duration now, vision::ImageView8* image, common::Duration* stamp) {
           if (started && now < next) return false;
           started = true;
           next = now + frame_period;
           vision::render::DiamondMarkerSceneParameters sp;
           sp.X_CO = X_CO;
           sp.p_O_T = world.plant().p_O_T;
-          *image = vision::render::ImageView8{pixels.data(), camera->width(), camera->height(),
-                                              static_cast<size_t>(camera->width())};
+          *image = vision::ImageView8{pixels.data(), camera->width(), camera->height(),
+                                      static_cast<size_t>(camera->width())};
           renderer.Render(vision::render::DiamondMarkerScene(sp), ++frame, *image);
           *stamp = now;
           return true;

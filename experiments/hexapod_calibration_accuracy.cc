@@ -77,6 +77,7 @@
 
 #include "calibration/hexapod/leg_calibration.h"
 #include "calibration/hexapod/pose_planner.h"
+#include "common/units.h"
 #include "robots/hexapod/hexapod_model.h"
 #include "sim/hexapod_world.h"
 #include "vision/camera/camera_file.h"
@@ -94,8 +95,6 @@ namespace vision = kinevis::vision;
 namespace edges = kinevis::vision::hexapod;
 using robots::kHexapodLegs;
 
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDeg = kPi / 180.0;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 struct Args {
@@ -175,7 +174,7 @@ CameraCase PerspectiveCase(const Args& args) {
                 "pinhole 1024x780, f = %.0f px, no distortion, eye (%.3f, %.3f, %.3f) m looking "
                 "at (0, 0, 0.2) m (%.2f m, 30 deg round, %.0f deg elevation)",
                 args.focal_px, eye.x(), eye.y(), eye.z(), args.distance,
-                std::asin(direction.z()) / kDeg);
+                std::asin(direction.z()) / kinevis::common::kDeg);
   c.description = text;
   c.seed_mm = 8.0;
   return c;
@@ -324,7 +323,7 @@ Run Calibrate(const CameraCase& cc, int camera_index, const std::vector<Frame>& 
           if ((*p_C_A)[j].allFinite()) predictions[j].p_C_A = (*p_C_A)[j];
         }
       }
-      render::ImageView8 view;
+      vision::ImageView8 view;
       view.data = const_cast<uint8_t*>(frames[k].pixels.data());
       view.width = camera.width();
       view.height = camera.height();
@@ -432,14 +431,14 @@ void PrintPlan(const calibration::PosePlan& plan, const Args& args,
     lo = lo.cwiseMin(d);
     hi = hi.cwiseMax(d);
     const Eigen::Vector3d z = X.linear().col(2);
-    tilt_max = std::max(tilt_max, std::acos(std::clamp(z.z(), -1.0, 1.0)) / kDeg);
+    tilt_max = std::max(tilt_max, std::acos(std::clamp(z.z(), -1.0, 1.0)) / kinevis::common::kDeg);
     const Eigen::AngleAxisd aa(X.linear());
-    yaw_max = std::max(yaw_max, std::abs(aa.angle() * aa.axis().z()) / kDeg);
+    yaw_max = std::max(yaw_max, std::abs(aa.angle() * aa.axis().z()) / kinevis::common::kDeg);
   }
   double angle_lo = 1e9, angle_hi = 0.0;
   for (const calibration::LegSpread& s : plan.legs) {
-    angle_lo = std::min(angle_lo, s.max_angle / kDeg);
-    angle_hi = std::max(angle_hi, s.max_angle / kDeg);
+    angle_lo = std::min(angle_lo, s.max_angle / kinevis::common::kDeg);
+    angle_hi = std::max(angle_hi, s.max_angle / kinevis::common::kDeg);
   }
   std::printf(
       "poses: %zu from calibration::PlanCalibrationPoses(nominal; seed %llu, %d candidates, %d "
@@ -476,7 +475,7 @@ void PrintPlan(const calibration::PosePlan& plan, const Args& args,
     for (size_t k = 0; k < plan.X_BP.size(); ++k) {
       const Eigen::Isometry3d& X = plan.X_BP[k];
       const Eigen::AngleAxisd aa(X.linear());
-      const Eigen::Vector3d r = aa.angle() / kDeg * aa.axis();
+      const Eigen::Vector3d r = aa.angle() / kinevis::common::kDeg * aa.axis();
       std::printf(
           "       pose %2zu: p_BP (%7.1f %7.1f %7.1f) mm, rotation vector (%6.2f %6.2f %6.2f) "
           "deg\n",
@@ -627,7 +626,8 @@ int main(int argc, char** argv) {
         Eigen::Isometry3d X_BC_true = cc.X_CB_drawn.inverse();
         X_BC_true.translation() += 1e-3 * args.camera_error_mm * RandomUnit(&mount);
         X_BC_true.linear() =
-            Eigen::AngleAxisd(args.camera_error_deg * kDeg, RandomUnit(&mount)).toRotationMatrix() *
+            Eigen::AngleAxisd(args.camera_error_deg * kinevis::common::kDeg, RandomUnit(&mount))
+                .toRotationMatrix() *
             X_BC_true.linear();
         const Eigen::Isometry3d X_CB_true = X_BC_true.inverse();
 
@@ -654,7 +654,7 @@ int main(int argc, char** argv) {
           frame.pixels.assign(static_cast<size_t>(camera.width()) * camera.height(), 0);
           const render::HexapodScene scene(truth, f.X_BP, X_CB_true);
           renderer.Render(scene, k,
-                          render::ImageView8{frame.pixels.data(), camera.width(), camera.height(),
+                          vision::ImageView8{frame.pixels.data(), camera.width(), camera.height(),
                                              static_cast<size_t>(camera.width())});
           frames.push_back(std::move(frame));
           planned.push_back(plan.X_BP[k]);

@@ -90,6 +90,8 @@
 #include "calibration/hexapod/hexapod_dataset.h"
 #include "calibration/hexapod/leg_calibration.h"
 #include "calibration/hexapod/pose_planner.h"
+#include "common/clock.h"
+#include "common/units.h"
 #include "control/hexapod/image_leg_features.h"
 #include "control/hexapod/leg_servo.h"
 #include "control/hexapod/servo_loop.h"
@@ -111,12 +113,10 @@ using kv::control::LegPoints;
 using kv::robots::kHexapodLegs;
 using kv::robots::Vector6d;
 
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDeg = kPi / 180.0;
 constexpr double kIssueThreshold = 1e-4;  // the issue's |e| figure
 // `kinevis servo hexapod`'s arrival test: the law's low-passed remaining displacement below these.
-constexpr double kArriveTranslation = 0.2e-3;    // m
-constexpr double kArriveRotation = 0.05 * kDeg;  // rad
+constexpr double kArriveTranslation = 0.2e-3;                // m
+constexpr double kArriveRotation = 0.05 * kv::common::kDeg;  // rad
 
 struct Args {
   std::string out = "hexapod-servo-convergence";
@@ -142,13 +142,8 @@ struct Args {
   unsigned seed = 2;
 };
 
-double Seconds(kv::hal::Duration d) { return std::chrono::duration<double>(d).count(); }
-kv::hal::Duration FromSeconds(double s) {
-  return std::chrono::duration_cast<kv::hal::Duration>(std::chrono::duration<double>(s));
-}
-
 double RotationDeg(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
-  return Eigen::AngleAxisd(a.linear() * b.linear().transpose()).angle() / kDeg;
+  return Eigen::AngleAxisd(a.linear() * b.linear().transpose()).angle() / kv::common::kDeg;
 }
 
 double MaxPointError(const LegPoints& p, const LegPoints& truth) {
@@ -310,15 +305,17 @@ class SimRig {
         throw std::runtime_error("move: " + d->name() + ": " + ec.message());
       }
     }
-    const double duration = std::max(0.05, kPi / 2 * (s - s0).cwiseAbs().maxCoeff() / speed);
-    const kv::hal::Duration start = world_->clock().Now();
+    const double duration =
+        std::max(0.05, kv::common::kPi / 2 * (s - s0).cwiseAbs().maxCoeff() / speed);
+    const kv::common::Duration start = world_->clock().Now();
     std::string fault;
-    master_->RunCyclesUntil(start + FromSeconds(duration + 0.2), [&] {
-      const double t = std::min(1.0, Seconds(world_->clock().Now() - start) / duration);
-      const double a = 0.5 * (1 - std::cos(kPi * t));
+    master_->RunCyclesUntil(start + kv::common::FromSeconds(duration + 0.2), [&] {
+      const double t =
+          std::min(1.0, kv::common::ToSeconds(world_->clock().Now() - start) / duration);
+      const double a = 0.5 * (1 - std::cos(kv::common::kPi * t));
       for (int j = 0; j < kHexapodLegs; ++j) {
         auto& d = master_->can_drives()[j];
-        if (d->lifecycle() == kv::hal::DeviceLifecycle::kFault) {
+        if (d->lifecycle() == kv::common::DeviceLifecycle::kFault) {
           fault = d->name() + " faulted";
           return true;
         }
@@ -331,8 +328,8 @@ class SimRig {
 
   // A frame captured after now (the drives keep cycling, holding their targets, meanwhile).
   void GrabFresh(kv::hal::Image* image) {
-    const kv::hal::Duration wanted = world_->clock().Now();
-    master_->RunCyclesUntil(wanted + FromSeconds(1.0 / fps_), [] { return false; });
+    const kv::common::Duration wanted = world_->clock().Now();
+    master_->RunCyclesUntil(wanted + kv::common::FromSeconds(1.0 / fps_), [] { return false; });
     for (int attempt = 0; attempt < 10; ++attempt) {
       if (const std::error_code ec = camera_->Grab(image, 2000ms)) {
         throw std::runtime_error("camera " + camera_->name() + ": " + ec.message());
@@ -482,19 +479,20 @@ std::vector<LegDirections> CollectFrames(SimRig* rig, kv::control::LegFeatureSou
                                          int frames, double fps) {
   std::vector<LegDirections> out;
   int partial = 0;
-  kv::hal::Clock& clock = rig->world().clock();
-  rig->master().RunCyclesUntil(clock.Now() + FromSeconds((2.0 * frames + 5) / fps), [&] {
-    kv::control::LegFeatureFrame f;
-    if (!source->Poll(clock.Now(), &f)) return false;
-    for (int j = 0; j < kHexapodLegs; ++j) {
-      if (!f.visible[j]) {
-        ++partial;
-        return false;
-      }
-    }
-    out.push_back(f.u_C);
-    return static_cast<int>(out.size()) >= frames;
-  });
+  kv::common::Clock& clock = rig->world().clock();
+  rig->master().RunCyclesUntil(clock.Now() + kv::common::FromSeconds((2.0 * frames + 5) / fps),
+                               [&] {
+                                 kv::control::LegFeatureFrame f;
+                                 if (!source->Poll(clock.Now(), &f)) return false;
+                                 for (int j = 0; j < kHexapodLegs; ++j) {
+                                   if (!f.visible[j]) {
+                                     ++partial;
+                                     return false;
+                                   }
+                                 }
+                                 out.push_back(f.u_C);
+                                 return static_cast<int>(out.size()) >= frames;
+                               });
   if (static_cast<int>(out.size()) < frames) {
     throw std::runtime_error("only " + std::to_string(out.size()) + " of " +
                              std::to_string(frames) + " frames saw all six legs (" +
@@ -763,7 +761,8 @@ ProbeResult Probe(const Args& args, const Setup& setup, const Variant& variant,
     for (const bool rotation : {false, true}) {
       Eigen::Isometry3d X = X_BP_target;
       if (rotation) {
-        X.linear() = Eigen::AngleAxisd(size * kDeg, Eigen::Vector3d::UnitZ()).matrix() * X.linear();
+        X.linear() = Eigen::AngleAxisd(size * kv::common::kDeg, Eigen::Vector3d::UnitZ()).matrix() *
+                     X.linear();
       } else {
         X.translation().x() += 1e-3 * size;
       }
@@ -964,9 +963,9 @@ int main(int argc, char** argv) {
     // Seed Fig. 9: a large displacement: 4 cm sideways, 2 cm back, 3 cm up, 6°, 4° and 5°.
     Eigen::Isometry3d target = defaults.X_BP_home;
     target.translation() += Eigen::Vector3d(0.04, -0.02, 0.03);
-    target.linear() = (Eigen::AngleAxisd(5 * kDeg, Eigen::Vector3d::UnitZ()) *
-                       Eigen::AngleAxisd(4 * kDeg, Eigen::Vector3d::UnitY()) *
-                       Eigen::AngleAxisd(6 * kDeg, Eigen::Vector3d::UnitX()))
+    target.linear() = (Eigen::AngleAxisd(5 * kv::common::kDeg, Eigen::Vector3d::UnitZ()) *
+                       Eigen::AngleAxisd(4 * kv::common::kDeg, Eigen::Vector3d::UnitY()) *
+                       Eigen::AngleAxisd(6 * kv::common::kDeg, Eigen::Vector3d::UnitX()))
                           .toRotationMatrix();
     const double move_mm = 1e3 * (target.translation() - defaults.X_BP_home.translation()).norm();
     const double move_deg = RotationDeg(target, defaults.X_BP_home);
@@ -998,8 +997,8 @@ int main(int argc, char** argv) {
       // a rotation error turns the whole scene about the camera's viewpoint).
       Eigen::Isometry3d X_BC_hand = camera.X_WC;
       X_BC_hand.translation() += 1e-3 * args.hand_error_mm * dt;
-      X_BC_hand.linear() =
-          camera.X_WC.linear() * Eigen::AngleAxisd(args.hand_error_deg * kDeg, dr).matrix();
+      X_BC_hand.linear() = camera.X_WC.linear() *
+                           Eigen::AngleAxisd(args.hand_error_deg * kv::common::kDeg, dr).matrix();
       const Eigen::Isometry3d X_CB_hand = X_BC_hand.inverse();
       LegPoints p_C_A_hand = kv::control::AttachmentPointsInCamera(nominal, X_CB_hand);
       for (int j = 0; j < kHexapodLegs; ++j) {

@@ -8,6 +8,9 @@
 #include <set>
 #include <stdexcept>
 
+#include "common/check.h"
+#include "common/clock.h"
+#include "common/units.h"
 #include "hal/camera/sim_camera.h"
 #include "hal/common/error.h"
 #include "hal/mock/rs485_drive_sim.h"
@@ -20,12 +23,6 @@ namespace kinevis::sim {
 using robots::kDiamondJoints;
 
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
-
-hal::Duration Seconds(double s) {
-  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
-}
 
 // The conditions that stop the mechanism (the rest of DiamondReachability, the (φ, γ) box, is a
 // task-space convention, not a stop).
@@ -43,7 +40,7 @@ bool Blocks(const robots::DiamondReachability& reach, robots::DiamondReach* reas
 }  // namespace
 
 std::string DiamondWorldConfig::Validate() const {
-  internal::Problems p;
+  common::Problems p;
   const std::string t = truth.Validate();
   if (!t.empty()) p.Add("truth (" + truth_description + "): " + t);
   const std::string n = nominal.Validate();
@@ -71,7 +68,7 @@ std::string DiamondWorldConfig::Validate() const {
   if (baud <= 0) p.Add("drives.baud: must be > 0, got " + std::to_string(baud));
   p.Positive("step_period_ms", step_period_s * 1e3);
   if (step_period_s > 0.01) {
-    p.Add("step_period_ms: " + internal::Num(step_period_s * 1e3) + " must be <= 10");
+    p.Add("step_period_ms: " + common::Num(step_period_s * 1e3) + " must be <= 10");
   }
   internal::ValidateCameras(cameras, &p);
   return p.Message();
@@ -99,12 +96,12 @@ DiamondWorldConfig LoadDiamondWorldConfig(const std::string& path) {
   load("nominal", &c.nominal_description, &c.nominal);
   const std::vector<double> errors =
       r.Numbers("perturbation.joint_offset_errors_deg", kDiamondJoints,
-                {c.joint_offset_errors[0] / kDeg, c.joint_offset_errors[1] / kDeg});
-  for (int i = 0; i < kDiamondJoints; ++i) c.joint_offset_errors[i] = errors[i] * kDeg;
+                {c.joint_offset_errors[0] / common::kDeg, c.joint_offset_errors[1] / common::kDeg});
+  for (int i = 0; i < kDiamondJoints; ++i) c.joint_offset_errors[i] = errors[i] * common::kDeg;
   r.CheckKeys("perturbation", {"joint_offset_errors_deg"});
   const std::vector<double> home =
-      r.Numbers("home_task_deg", 2, {c.home_task[0] / kDeg, c.home_task[1] / kDeg});
-  c.home_task = Eigen::Vector2d(home[0], home[1]) * kDeg;
+      r.Numbers("home_task_deg", 2, {c.home_task[0] / common::kDeg, c.home_task[1] / common::kDeg});
+  c.home_task = Eigen::Vector2d(home[0], home[1]) * common::kDeg;
   const std::vector<double> units =
       r.Numbers("drives.units", kDiamondJoints, {double(c.units[0]), double(c.units[1])});
   for (int i = 0; i < kDiamondJoints; ++i) c.units[i] = static_cast<int>(units[i]);
@@ -137,8 +134,8 @@ DiamondWorld::DiamondWorld(DiamondWorldConfig config, Timing timing, const std::
     : config_(std::move(config)),
       timing_(timing),
       true_(TrueDiamondModel(config_)),
-      clock_(timing == Timing::kStepped ? static_cast<hal::Clock*>(&sim_time_)
-                                        : &hal::SteadyClock::Instance()) {
+      clock_(timing == Timing::kStepped ? static_cast<common::Clock*>(&sim_time_)
+                                        : &common::SteadyClock::Instance()) {
   std::string invalid = config_.Validate();
   if (invalid.empty()) {
     const std::string t = true_.Validate();
@@ -164,7 +161,8 @@ DiamondWorld::DiamondWorld(DiamondWorldConfig config, Timing timing, const std::
   state_.u_O = data.u_O;
   state_.p_O_T = data.p_O_T;
 
-  world_clock_ = std::make_unique<WorldClock>(&sim_time_, [this](hal::Duration t) { StepTo(t); });
+  world_clock_ =
+      std::make_unique<WorldClock>(&sim_time_, [this](common::Duration t) { StepTo(t); });
   pty_ = std::make_unique<hal::PtyPair>();
   std::string path = pty_->slave_path();
   if (!link.empty()) {
@@ -206,19 +204,16 @@ DiamondWorld::~DiamondWorld() {
 
 const std::string& DiamondWorld::backend() const { return drives_->backend(); }
 
-hal::Clock& DiamondWorld::clock() {
+common::Clock& DiamondWorld::clock() {
   if (timing_ == Timing::kStepped) return *world_clock_;
-  return hal::SteadyClock::Instance();
+  return common::SteadyClock::Instance();
 }
 
-void DiamondWorld::Step(hal::Duration dt) { StepTo(sim_time_.Now() + dt); }
+void DiamondWorld::Step(common::Duration dt) { StepTo(sim_time_.Now() + dt); }
 
-void DiamondWorld::StepTo(hal::Duration t) {
-  if (timing_ != Timing::kStepped) {
-    spdlog::critical("DiamondWorld::Step called on a real-time world");
-    std::abort();
-  }
-  const hal::Duration period = Seconds(config_.step_period_s);
+void DiamondWorld::StepTo(common::Duration t) {
+  KINEVIS_DEMAND_MSG(timing_ == Timing::kStepped, "DiamondWorld::Step called on a real-time world");
+  const common::Duration period = common::FromSeconds(config_.step_period_s);
   while (sim_time_.Now() < t) {
     sim_time_.AdvanceTo(std::min(t, sim_time_.Now() + period));
     drives_->Step();
@@ -321,13 +316,13 @@ std::vector<std::string> DiamondWorld::RegisterCameras(SceneFactory factory) {
     format.fps = c.fps;
     hal::RegisterRenderSource(
         c.name, format,
-        [this, cam, factory](uint64_t frame_id, hal::Duration, hal::Image* image) {
+        [this, cam, factory](uint64_t frame_id, common::Duration, hal::Image* image) {
           const DiamondPlantState state = plant();
           const auto scene = factory(true_, state, cam->config.X_WC);
           std::lock_guard<std::mutex> lock(cam->mutex);
-          cam->renderer->Render(*scene, frame_id,
-                                vision::render::ImageView8{image->data.data(), image->width,
-                                                           image->height, image->stride});
+          cam->renderer->Render(
+              *scene, frame_id,
+              vision::ImageView8{image->data.data(), image->width, image->height, image->stride});
           return std::error_code{};
         },
         c.model);

@@ -34,7 +34,7 @@
 #include <thread>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/mock/cia402_device.h"
 #include "robots/diamond/diamond_model.h"
 #include "sim/hexapod_world.h"  // WorldClock, WorldCameraConfig, internal::WorldConfigReader
@@ -81,7 +81,7 @@ DiamondWorldConfig LoadDiamondWorldConfig(const std::string& path);
 robots::DiamondModel TrueDiamondModel(const DiamondWorldConfig& config);
 
 struct DiamondPlantState {
-  hal::Duration time{0};
+  common::Duration time{0};
   Eigen::Vector2d q = Eigen::Vector2d::Zero();      // joint readings (rad)
   Eigen::Vector2d task = Eigen::Vector2d::Zero();   // true (φ, γ) (rad)
   Eigen::Vector3d u_O = Eigen::Vector3d::UnitZ();   // true tool axis in O
@@ -111,9 +111,9 @@ class DiamondWorld {
 
   // "modbus-rtu:/dev/pts/N@3000000,8E1" (or the link); add ",unit=N" per drive.
   const std::string& backend() const;
-  hal::Clock& clock();          // as HexapodWorld::clock()
-  void Step(hal::Duration dt);  // kStepped only
-  void StepTo(hal::Duration t);
+  common::Clock& clock();          // as HexapodWorld::clock()
+  void Step(common::Duration dt);  // kStepped only
+  void StepTo(common::Duration t);
   void Start();  // kRealTime: the drives' stepping thread and the plant thread
   void Stop();
 
@@ -135,9 +135,9 @@ class DiamondWorld {
   const DiamondWorldConfig config_;
   const Timing timing_;
   const robots::DiamondModel true_;
-  hal::SimulatedClock sim_time_;
+  common::SimulatedClock sim_time_;
   std::unique_ptr<WorldClock> world_clock_;
-  hal::Clock* clock_;
+  common::Clock* clock_;
   std::unique_ptr<hal::PtyPair> pty_;
   std::unique_ptr<hal::Rs485DriveSim> drives_;
 

@@ -4,7 +4,6 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
-#include <cassert>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -13,6 +12,9 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/check.h"
+#include "common/clock.h"
+#include "common/units.h"
 #include "hal/camera/sim_camera.h"
 #include "hal/can/virtual_can_bus.h"
 #include "hal/common/backend_spec.h"
@@ -31,42 +33,11 @@ namespace {
 
 constexpr int kSlcanSerialBaud = 115200;  // a pty carries any rate; the host must name one
 
-hal::Duration Seconds(double s) {
-  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
-}
-
 }  // namespace
 
 namespace internal {
 
-// ---- Problems
-
-void Problems::Add(const std::string& text) { message_ += (message_.empty() ? "" : "; ") + text; }
-
-void Problems::Positive(const std::string& field, double value) {
-  if (!(std::isfinite(value) && value > 0)) Add(field + ": must be > 0, got " + Num(value));
-}
-
-void Problems::NonNegative(const std::string& field, double value) {
-  if (!(std::isfinite(value) && value >= 0)) Add(field + ": must be >= 0, got " + Num(value));
-}
-
-std::string Problems::Message() const { return message_; }
-
-std::string Num(double value) {
-  for (int digits = 6; digits < 17; ++digits) {
-    std::ostringstream o;
-    o.precision(digits);
-    o << value;
-    if (!std::isfinite(value) || std::strtod(o.str().c_str(), nullptr) == value) return o.str();
-  }
-  std::ostringstream o;
-  o.precision(17);
-  o << value;
-  return o.str();
-}
-
-void ValidateCameras(const std::vector<WorldCameraConfig>& cameras, Problems* p) {
+void ValidateCameras(const std::vector<WorldCameraConfig>& cameras, common::Problems* p) {
   std::set<std::string> names;
   for (size_t i = 0; i < cameras.size(); ++i) {
     const WorldCameraConfig& c = cameras[i];
@@ -89,7 +60,7 @@ void ValidateCameras(const std::vector<WorldCameraConfig>& cameras, Problems* p)
 struct WorldConfigReader::Impl {
   std::string path;
   YAML::Node root;
-  Problems problems;
+  common::Problems problems;
 
   // The node at a dotted key; an invalid (undefined) node when it is not there. Read-only walk:
   // a const Node's operator[] does not insert.
@@ -137,10 +108,9 @@ struct WorldConfigReader::Impl {
       const std::string k = kv.first.Scalar();
       if (k != "position" && k != "rpy_deg") problems.Add(key + "." + k + ": unknown key");
     }
-    constexpr double kDeg = 3.14159265358979323846 / 180.0;
-    X.linear() = (Eigen::AngleAxisd(rpy[2] * kDeg, Eigen::Vector3d::UnitZ()) *
-                  Eigen::AngleAxisd(rpy[1] * kDeg, Eigen::Vector3d::UnitY()) *
-                  Eigen::AngleAxisd(rpy[0] * kDeg, Eigen::Vector3d::UnitX()))
+    X.linear() = (Eigen::AngleAxisd(rpy[2] * common::kDeg, Eigen::Vector3d::UnitZ()) *
+                  Eigen::AngleAxisd(rpy[1] * common::kDeg, Eigen::Vector3d::UnitY()) *
+                  Eigen::AngleAxisd(rpy[0] * common::kDeg, Eigen::Vector3d::UnitX()))
                      .toRotationMatrix();
     X.translation() = Eigen::Vector3d(position[0], position[1], position[2]);
     return X;
@@ -313,7 +283,7 @@ const std::string& WorldConfigReader::path() const { return impl_->path; }
 }  // namespace internal
 
 std::string HexapodWorldConfig::Validate() const {
-  internal::Problems p;
+  common::Problems p;
   const std::string model = nominal.Validate();
   if (!model.empty()) p.Add("robot (" + robot_description + "): " + model);
   if (!X_BP_home.matrix().allFinite()) p.Add("home pose: not finite");
@@ -336,7 +306,7 @@ std::string HexapodWorldConfig::Validate() const {
   if (std::isfinite(counts_per_metre) && counts_per_metre > 0 &&
       std::isfinite(nominal.leg_length_max) &&
       std::abs(nominal.leg_length_max) * counts_per_metre > 2e9) {
-    p.Add("drives.counts_per_metre: " + internal::Num(counts_per_metre) +
+    p.Add("drives.counts_per_metre: " + common::Num(counts_per_metre) +
           " overflows the drives' 32-bit positions over the stroke");
   }
   if (network.empty()) p.Add("can.network: must not be empty");
@@ -346,7 +316,7 @@ std::string HexapodWorldConfig::Validate() const {
   }
   p.Positive("step_period_ms", step_period_s * 1e3);
   if (step_period_s > 0.01)
-    p.Add("step_period_ms: " + internal::Num(step_period_s * 1e3) + " must be <= 10");
+    p.Add("step_period_ms: " + common::Num(step_period_s * 1e3) + " must be <= 10");
   internal::ValidateCameras(cameras, &p);
   return p.Message();
 }
@@ -354,12 +324,11 @@ std::string HexapodWorldConfig::Validate() const {
 std::vector<WorldCameraConfig> DefaultHexapodCameras() {
   const auto pose = [](const Eigen::Vector3d& p, double roll_deg, double pitch_deg,
                        double yaw_deg) {
-    constexpr double kDeg = M_PI / 180.0;
     Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
     X.translation() = p;
-    X.linear() = (Eigen::AngleAxisd(yaw_deg * kDeg, Eigen::Vector3d::UnitZ()) *
-                  Eigen::AngleAxisd(pitch_deg * kDeg, Eigen::Vector3d::UnitY()) *
-                  Eigen::AngleAxisd(roll_deg * kDeg, Eigen::Vector3d::UnitX()))
+    X.linear() = (Eigen::AngleAxisd(yaw_deg * common::kDeg, Eigen::Vector3d::UnitZ()) *
+                  Eigen::AngleAxisd(pitch_deg * common::kDeg, Eigen::Vector3d::UnitY()) *
+                  Eigen::AngleAxisd(roll_deg * common::kDeg, Eigen::Vector3d::UnitX()))
                      .toRotationMatrix();
     return X;
   };
@@ -448,8 +417,8 @@ HexapodWorld::HexapodWorld(HexapodWorldConfig config, Timing timing)
     : config_(std::move(config)),
       timing_(timing),
       true_(TrueHexapodModel(config_)),
-      clock_(timing == Timing::kStepped ? static_cast<hal::Clock*>(&sim_time_)
-                                        : &hal::SteadyClock::Instance()) {
+      clock_(timing == Timing::kStepped ? static_cast<common::Clock*>(&sim_time_)
+                                        : &common::SteadyClock::Instance()) {
   std::string invalid = config_.Validate();
   if (invalid.empty()) {
     const std::string truth = true_.Validate();
@@ -470,15 +439,16 @@ HexapodWorld::HexapodWorld(HexapodWorldConfig config, Timing timing)
     commanded_s_[j] = state_.s[j];
   }
 
-  world_clock_ = std::make_unique<WorldClock>(&sim_time_, [this](hal::Duration t) { StepTo(t); });
+  world_clock_ =
+      std::make_unique<WorldClock>(&sim_time_, [this](common::Duration t) { StepTo(t); });
 
   hal::VirtualCanNetwork::Options net;
   net.bitrate = config_.can_bitrate;
   net.clock = clock_;
   network_ = hal::VirtualCanNetwork::Get(config_.network, net);
   if (&network_->clock() != clock_) {
-    throw hal::ConfigError("hexapod world: CAN network \"" + config_.network +
-                           "\" already exists in this process with another clock");
+    throw common::ConfigError("hexapod world: CAN network \"" + config_.network +
+                              "\" already exists in this process with another clock");
   }
   const double cpm = config_.counts_per_metre;
   for (int j = 0; j < kHexapodLegs; ++j) {
@@ -510,19 +480,16 @@ HexapodWorld::~HexapodWorld() {
   for (auto& d : drives_) d->device().SetPlantHook({});
 }
 
-hal::Clock& HexapodWorld::clock() {
+common::Clock& HexapodWorld::clock() {
   if (timing_ == Timing::kStepped) return *world_clock_;
-  return hal::SteadyClock::Instance();
+  return common::SteadyClock::Instance();
 }
 
-void HexapodWorld::Step(hal::Duration dt) { StepTo(sim_time_.Now() + dt); }
+void HexapodWorld::Step(common::Duration dt) { StepTo(sim_time_.Now() + dt); }
 
-void HexapodWorld::StepTo(hal::Duration t) {
-  if (timing_ != Timing::kStepped) {
-    spdlog::critical("HexapodWorld::Step called on a real-time world");
-    std::abort();
-  }
-  const hal::Duration period = Seconds(config_.step_period_s);
+void HexapodWorld::StepTo(common::Duration t) {
+  KINEVIS_DEMAND_MSG(timing_ == Timing::kStepped, "HexapodWorld::Step called on a real-time world");
+  const common::Duration period = common::FromSeconds(config_.step_period_s);
   while (sim_time_.Now() < t) {
     sim_time_.AdvanceTo(std::min(t, sim_time_.Now() + period));
     for (auto& d : drives_) d->Service();
@@ -538,9 +505,9 @@ std::string HexapodWorld::virtual_backend() const { return "virtual:" + config_.
 
 std::string HexapodWorld::ExposeSlcan(const std::string& link) {
   if (timing_ != Timing::kRealTime) {
-    throw hal::ConfigError("hexapod world: an slcan adapter needs a real-time world");
+    throw common::ConfigError("hexapod world: an slcan adapter needs a real-time world");
   }
-  if (adapter_) throw hal::ConfigError("hexapod world: the bus is already exposed");
+  if (adapter_) throw common::ConfigError("hexapod world: the bus is already exposed");
   pty_ = std::make_unique<hal::PtyPair>();
   adapter_bus_ = network_->Connect("slcan adapter");
   adapter_ = std::make_unique<hal::SlcanAdapterSim>(
@@ -644,7 +611,7 @@ HexapodPlantState HexapodWorld::plant() const {
 hal::Cia402Device& HexapodWorld::drive_device(int leg) { return drive(leg).device(); }
 
 hal::CanopenDriveSim& HexapodWorld::drive(int leg) {
-  assert(leg >= 0 && leg < kHexapodLegs);
+  KINEVIS_DEMAND(leg >= 0 && leg < kHexapodLegs);
   return *drives_.at(static_cast<size_t>(leg));
 }
 
@@ -664,14 +631,14 @@ std::vector<std::string> HexapodWorld::RegisterCameras(SceneFactory factory) {
     format.fps = c.fps;
     hal::RegisterRenderSource(
         c.name, format,
-        [this, cam, factory](uint64_t frame_id, hal::Duration, hal::Image* image) {
+        [this, cam, factory](uint64_t frame_id, common::Duration, hal::Image* image) {
           const HexapodPlantState state = plant();  // a copy: the render never blocks a step
           const std::unique_ptr<vision::render::Scene> scene =
               factory(true_, state, cam->config.X_WC);
           std::lock_guard<std::mutex> lock(cam->mutex);
-          cam->renderer->Render(*scene, frame_id,
-                                vision::render::ImageView8{image->data.data(), image->width,
-                                                           image->height, image->stride});
+          cam->renderer->Render(
+              *scene, frame_id,
+              vision::ImageView8{image->data.data(), image->width, image->height, image->stride});
           return std::error_code{};
         },
         c.model);

@@ -54,8 +54,9 @@
 #include <thread>
 #include <vector>
 
+#include "common/clock.h"
+#include "common/config_error.h"
 #include "hal/can/can_bus.h"
-#include "hal/common/clock.h"
 #include "hal/mock/cia402_device.h"
 #include "robots/hexapod/hexapod_model.h"
 #include "vision/render/renderer.h"
@@ -85,18 +86,18 @@ struct WorldCameraConfig {
 // (CanopenMaster, Rs485DriveBus options.clock) so that the host's waits are where simulated time
 // passes, exactly as in the HAL tests. Single-threaded use: the host and the stepping share the
 // caller's thread.
-class WorldClock final : public hal::Clock {
+class WorldClock final : public common::Clock {
  public:
-  WorldClock(const hal::Clock* time, std::function<void(hal::Duration)> step_to)
+  WorldClock(const common::Clock* time, std::function<void(common::Duration)> step_to)
       : time_(time), step_to_(std::move(step_to)) {}
-  hal::Duration Now() const override { return time_->Now(); }
-  void SleepUntil(hal::Duration deadline) override {
+  common::Duration Now() const override { return time_->Now(); }
+  void SleepUntil(common::Duration deadline) override {
     if (deadline > time_->Now()) step_to_(deadline);
   }
 
  private:
-  const hal::Clock* time_;
-  std::function<void(hal::Duration)> step_to_;
+  const common::Clock* time_;
+  std::function<void(common::Duration)> step_to_;
 };
 
 namespace internal {
@@ -139,19 +140,7 @@ class WorldConfigReader {
   std::unique_ptr<Impl> impl_;
 };
 
-// Accumulates "field: problem" texts for the Validate() methods.
-class Problems {
- public:
-  void Add(const std::string& text);
-  void Positive(const std::string& field, double value);     // finite and > 0
-  void NonNegative(const std::string& field, double value);  // finite and >= 0
-  std::string Message() const;                               // "; "-joined, empty when none
-
- private:
-  std::string message_;
-};
-std::string Num(double value);  // shortest text that reads back as `value`
-void ValidateCameras(const std::vector<WorldCameraConfig>& cameras, Problems* problems);
+void ValidateCameras(const std::vector<WorldCameraConfig>& cameras, common::Problems* problems);
 
 }  // namespace internal
 
@@ -206,7 +195,7 @@ robots::HexapodModel TrueHexapodModel(const HexapodWorldConfig& config);
 
 // The state of the plant at one instant.
 struct HexapodPlantState {
-  hal::Duration time{0};                                   // world clock
+  common::Duration time{0};                                // world clock
   Eigen::Isometry3d X_BP = Eigen::Isometry3d::Identity();  // true pose of P in B
   robots::Vector6d q = robots::Vector6d::Zero();           // true leg lengths (m)
   robots::Vector6d s = robots::Vector6d::Zero();           // actuator readings (m)
@@ -223,7 +212,7 @@ class HexapodWorld {
 
   // Builds the truth, the bus and the drives (not started). Throws std::invalid_argument with
   // config.Validate()'s message, or when the home pose is not reachable by the true robot;
-  // hal::ConfigError when the network name is in use with another bit rate.
+  // common::ConfigError when the network name is in use with another bit rate.
   explicit HexapodWorld(HexapodWorldConfig config, Timing timing = Timing::kStepped);
   ~HexapodWorld();  // Stop(); unregisters the cameras
   HexapodWorld(const HexapodWorld&) = delete;
@@ -236,11 +225,11 @@ class HexapodWorld {
 
   // The clock a host in this process uses: kStepped, a WorldClock (sleeping on it steps the
   // world); kRealTime, the SteadyClock.
-  hal::Clock& clock();
+  common::Clock& clock();
   // kStepped only (aborts otherwise): advances the time by dt in steps of step_period_s; each
   // step services the six drives (CAN frames, motion) and updates the plant.
-  void Step(hal::Duration dt);
-  void StepTo(hal::Duration t);
+  void Step(common::Duration dt);
+  void StepTo(common::Duration t);
 
   // A new node on the world's CAN bus, for an in-process host (CanopenMaster). The bus is also
   // reachable as "virtual:NAME" through hal::OpenCanBus in this process.
@@ -269,7 +258,7 @@ class HexapodWorld {
       const Eigen::Isometry3d& X_BC)>;
   // Registers every configured camera as a render source "sim:NAME" rendering factory's scene.
   // Returns the registered names. Throws std::invalid_argument for a bad camera model spec and
-  // hal::ConfigError when a name is taken.
+  // common::ConfigError when a name is taken.
   std::vector<std::string> RegisterCameras(SceneFactory factory);
   std::vector<std::string> camera_sources() const;
 
@@ -283,9 +272,9 @@ class HexapodWorld {
   const Timing timing_;
   const robots::HexapodModel true_;
 
-  hal::SimulatedClock sim_time_;
+  common::SimulatedClock sim_time_;
   std::unique_ptr<WorldClock> world_clock_;
-  hal::Clock* clock_;  // the drives' and the network's clock
+  common::Clock* clock_;  // the drives' and the network's clock
 
   std::shared_ptr<hal::VirtualCanNetwork> network_;
   std::vector<std::unique_ptr<hal::CanBus>> drive_buses_;

@@ -5,25 +5,24 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "common/units.h"
 #include "hal/camera/frame_server.h"
 #include "hal/camera/sim_camera.h"
-#include "sim/hexapod_world.h"  // internal::WorldConfigReader, internal::Problems
+#include "sim/hexapod_world.h"  // internal::WorldConfigReader, common::Problems
 
 namespace kinevis::sim {
 
-namespace {
-constexpr double kDeg = M_PI / 180.0;
-}  // namespace
+namespace {}  // namespace
 
 vision::HyperbolicMirrorParameters DefaultTrueSoccerCamera() {
   vision::HyperbolicMirrorParameters p = vision::HyperbolicMirrorParameters::Seed000Lens4mm();
   p.sensor_offset_x = 0.05e-3;
   p.sensor_offset_z = -0.03e-3;
-  p.sensor_gamma = 0.8 * kDeg;
-  p.sensor_rho = 0.6 * kDeg;
-  p.sensor_theta = -0.5 * kDeg;
-  p.ground_rho = 0.5 * kDeg;
-  p.ground_theta = -0.3 * kDeg;
+  p.sensor_gamma = 0.8 * common::kDeg;
+  p.sensor_rho = 0.6 * common::kDeg;
+  p.sensor_theta = -0.5 * common::kDeg;
+  p.ground_rho = 0.5 * common::kDeg;
+  p.ground_theta = -0.3 * common::kDeg;
   return p;
 }
 
@@ -35,7 +34,7 @@ vision::HyperbolicMirrorParameters WithoutMisalignment(vision::HyperbolicMirrorP
 }
 
 std::string SoccerWorldConfig::Validate() const {
-  internal::Problems p;
+  common::Problems p;
   const std::string cam = camera.Validate();
   if (!cam.empty()) p.Add("camera: " + cam);
   const std::string f = field.Validate();
@@ -70,16 +69,16 @@ SoccerWorldConfig LoadSoccerWorldConfig(const std::string& path) {
       r.Numbers("camera.sensor_offset_mm", 2, {m.sensor_offset_x * 1e3, m.sensor_offset_z * 1e3});
   m.sensor_offset_x = offset[0] * 1e-3;
   m.sensor_offset_z = offset[1] * 1e-3;
-  const std::vector<double> rotation =
-      r.Numbers("camera.sensor_rotation_deg", 3,
-                {m.sensor_gamma / kDeg, m.sensor_rho / kDeg, m.sensor_theta / kDeg});
-  m.sensor_gamma = rotation[0] * kDeg;
-  m.sensor_rho = rotation[1] * kDeg;
-  m.sensor_theta = rotation[2] * kDeg;
-  const std::vector<double> tilt =
-      r.Numbers("camera.mirror_tilt_deg", 2, {m.ground_rho / kDeg, m.ground_theta / kDeg});
-  m.ground_rho = tilt[0] * kDeg;
-  m.ground_theta = tilt[1] * kDeg;
+  const std::vector<double> rotation = r.Numbers(
+      "camera.sensor_rotation_deg", 3,
+      {m.sensor_gamma / common::kDeg, m.sensor_rho / common::kDeg, m.sensor_theta / common::kDeg});
+  m.sensor_gamma = rotation[0] * common::kDeg;
+  m.sensor_rho = rotation[1] * common::kDeg;
+  m.sensor_theta = rotation[2] * common::kDeg;
+  const std::vector<double> tilt = r.Numbers(
+      "camera.mirror_tilt_deg", 2, {m.ground_rho / common::kDeg, m.ground_theta / common::kDeg});
+  m.ground_rho = tilt[0] * common::kDeg;
+  m.ground_theta = tilt[1] * common::kDeg;
   const std::vector<double> axis =
       r.Numbers("camera.mirror_axis_mm", 2, {m.mirror_axis_x * 1e3, m.mirror_axis_z * 1e3});
   m.mirror_axis_x = axis[0] * 1e-3;
@@ -100,7 +99,8 @@ SoccerWorldConfig LoadSoccerWorldConfig(const std::string& path) {
   r.CheckKeys("robot", {"x", "y", "heading_deg"});
   c.field.robot_x = r.Number("robot.x", c.field.robot_x);
   c.field.robot_y = r.Number("robot.y", c.field.robot_y);
-  c.field.robot_heading = r.Number("robot.heading_deg", c.field.robot_heading / kDeg) * kDeg;
+  c.field.robot_heading =
+      r.Number("robot.heading_deg", c.field.robot_heading / common::kDeg) * common::kDeg;
   r.CheckKeys("field", {"length", "width", "line_width", "centre_circle_radius", "carpet_border"});
   c.field.field_length = r.Number("field.length", c.field.field_length);
   c.field.field_width = r.Number("field.width", c.field.field_width);
@@ -153,9 +153,9 @@ SoccerRobotWorld::~SoccerRobotWorld() {
   if (frame_server_) frame_server_->Stop();
 }
 
-hal::Clock& SoccerRobotWorld::clock() {
+common::Clock& SoccerRobotWorld::clock() {
   if (timing_ == Timing::kStepped) return sim_time_;
-  return hal::SteadyClock::Instance();
+  return common::SteadyClock::Instance();
 }
 
 void SoccerRobotWorld::SetRobotPose(double x, double y, double heading) {
@@ -217,7 +217,7 @@ hal::CameraFormat SoccerRobotWorld::camera_format() const {
   return f;
 }
 
-void SoccerRobotWorld::Render(uint64_t frame_id, const vision::render::ImageView8& out,
+void SoccerRobotWorld::Render(uint64_t frame_id, const vision::ImageView8& out,
                               vision::render::GroundTruth* truth) {
   const std::shared_ptr<const vision::render::SoccerFieldScene> s = scene();
   std::lock_guard<std::mutex> lock(render_mutex_);
@@ -228,9 +228,9 @@ std::string SoccerRobotWorld::RegisterCamera() {
   if (!registered_.empty()) throw std::logic_error("soccer world: camera registered twice");
   hal::RegisterRenderSource(
       config_.camera_name, camera_format(),
-      [this](uint64_t frame_id, hal::Duration, hal::Image* image) {
-        Render(frame_id, vision::render::ImageView8{image->data.data(), image->width, image->height,
-                                                    image->stride});
+      [this](uint64_t frame_id, common::Duration, hal::Image* image) {
+        Render(frame_id,
+               vision::ImageView8{image->data.data(), image->width, image->height, image->stride});
         return std::error_code{};
       },
       "soccer-world:true-camera");
@@ -245,9 +245,9 @@ std::string SoccerRobotWorld::ServeCamera(const hal::FrameServerOptions& options
   frame_server_ = hal::FrameServer::Listen(
       hal::RenderFrameSource(
           camera_format(),
-          [this](uint64_t frame_id, hal::Duration, hal::Image* image) {
-            Render(frame_id, vision::render::ImageView8{image->data.data(), image->width,
-                                                        image->height, image->stride});
+          [this](uint64_t frame_id, common::Duration, hal::Image* image) {
+            Render(frame_id, vision::ImageView8{image->data.data(), image->width, image->height,
+                                                image->stride});
             return std::error_code{};
           },
           "soccer-world:true-camera", clock()),

@@ -33,8 +33,8 @@
 #include <string>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/camera/camera.h"
-#include "hal/common/clock.h"
 #include "vision/camera/hyperbolic_mirror_camera.h"
 #include "vision/render/renderer.h"
 #include "vision/render/scenes/soccer_field_scene.h"
@@ -98,7 +98,7 @@ class SoccerRobotWorld {
   const SoccerWorldConfig& config() const { return config_; }
   const vision::HyperbolicMirrorCamera& true_camera() const { return true_camera_; }
   const vision::HyperbolicMirrorCamera& nominal_camera() const { return nominal_camera_; }
-  hal::Clock& clock();
+  common::Clock& clock();
 
   // Moves the robot on the field (m, m, rad; finite, std::invalid_argument otherwise).
   void SetRobotPose(double x, double y, double heading);
@@ -115,7 +115,7 @@ class SoccerRobotWorld {
   // Mono8, the camera's size, config fps.
   hal::CameraFormat camera_format() const;
   // Renders frame `frame_id` into `out` (camera-sized). `truth` may be null.
-  void Render(uint64_t frame_id, const vision::render::ImageView8& out,
+  void Render(uint64_t frame_id, const vision::ImageView8& out,
               vision::render::GroundTruth* truth = nullptr);
 
   // As WeldCellWorld: render source "sim:NAME" in this process, and a FrameServer ("net:...").
@@ -127,7 +127,7 @@ class SoccerRobotWorld {
   const Timing timing_;
   const vision::HyperbolicMirrorCamera true_camera_;
   const vision::HyperbolicMirrorCamera nominal_camera_;
-  hal::SimulatedClock sim_time_;
+  common::SimulatedClock sim_time_;
 
   mutable std::mutex mutex_;
   std::shared_ptr<const vision::render::SoccerFieldScene> scene_;

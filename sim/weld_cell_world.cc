@@ -4,13 +4,15 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
-#include <cassert>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <random>
 #include <stdexcept>
 
+#include "common/check.h"
+#include "common/clock.h"
+#include "common/units.h"
 #include "hal/camera/frame_server.h"
 #include "hal/camera/sim_camera.h"
 #include "hal/mock/weld_robot_sim.h"
@@ -21,18 +23,13 @@ namespace kinevis::sim {
 
 namespace {
 
-constexpr double kDeg = M_PI / 180.0;
 constexpr size_t kScanLogLength = 10000;
-
-hal::Duration Seconds(double s) {
-  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
-}
 
 Eigen::Isometry3d Pose(const Eigen::Vector3d& p, const Eigen::Vector3d& rpy_deg) {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-  X.linear() = (Eigen::AngleAxisd(rpy_deg.z() * kDeg, Eigen::Vector3d::UnitZ()) *
-                Eigen::AngleAxisd(rpy_deg.y() * kDeg, Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(rpy_deg.x() * kDeg, Eigen::Vector3d::UnitX()))
+  X.linear() = (Eigen::AngleAxisd(rpy_deg.z() * common::kDeg, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(rpy_deg.y() * common::kDeg, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(rpy_deg.x() * common::kDeg, Eigen::Vector3d::UnitX()))
                    .toRotationMatrix();
   X.translation() = p;
   return X;
@@ -98,8 +95,8 @@ vision::render::LaserSceneParameters DefaultBlade() {
 }
 
 std::string WeldCellWorldConfig::Validate() const {
-  internal::Problems p;
-  using internal::Num;
+  common::Problems p;
+  using common::Num;
   const std::string robot =
       robot_description.empty() ? "robot" : "robot (" + robot_description + ")";
   for (int j = 0; j < robots::kWeld5Joints; ++j) {
@@ -281,7 +278,9 @@ WeldCellWorldConfig LoadWeldCellWorldConfig(const std::string& path) {
         r.Numbers("workpiece.gauge_block.centre_mm", 2,
                   {w.gauge_centre_S.x() * 1e3, w.gauge_centre_S.y() * 1e3});
     w.gauge_centre_S = Eigen::Vector2d(centre[0], centre[1]) * 1e-3;
-    w.gauge_heading = r.Number("workpiece.gauge_block.heading_deg", w.gauge_heading / kDeg) * kDeg;
+    w.gauge_heading =
+        r.Number("workpiece.gauge_block.heading_deg", w.gauge_heading / common::kDeg) *
+        common::kDeg;
     const std::vector<double> size =
         r.Numbers("workpiece.gauge_block.size_mm", 3,
                   {w.gauge_size.x() * 1e3, w.gauge_size.y() * 1e3, w.gauge_size.z() * 1e3});
@@ -301,7 +300,7 @@ WeldCellWorldConfig LoadWeldCellWorldConfig(const std::string& path) {
   c.unit = static_cast<int>(r.Integer("modbus.unit", c.unit));
   c.buffer_capacity = static_cast<int>(r.Integer("modbus.buffer", c.buffer_capacity));
   // [θ1, θ2, pz3, θ4, θ5] in deg, deg, mm, deg, deg (the `kinevis weld-robot move` units).
-  const std::array<double, 5> scale{kDeg, kDeg, 1e-3, kDeg, kDeg};
+  const std::array<double, 5> scale{common::kDeg, common::kDeg, 1e-3, common::kDeg, common::kDeg};
   std::vector<double> fallback;
   for (size_t j = 0; j < 5; ++j) fallback.push_back(c.initial_joints[j] / scale[j]);
   const std::vector<double> q0 = r.Numbers("modbus.initial_joints", 5, fallback);
@@ -321,7 +320,7 @@ robots::Weld5Model TrueWeld5Model(const WeldCellWorldConfig& config) {
   std::mt19937 generator(config.seed);
   std::normal_distribution<double> length(0.0, 1.0), angle(0.0, 1.0);
   const double s_len = config.dh_length_sigma_mm * 1e-3;
-  const double s_ang = config.dh_angle_sigma_deg * kDeg;
+  const double s_ang = config.dh_angle_sigma_deg * common::kDeg;
   // Fixed draw order, link by link: a, d, α, θ offset.
   for (robots::DhJoint& j : m.joints) {
     j.a += s_len * length(generator);
@@ -338,8 +337,8 @@ WeldCellWorld::WeldCellWorld(WeldCellWorldConfig config, Timing timing)
     : config_(std::move(config)),
       timing_(timing),
       true_(TrueWeld5Model(config_)),
-      clock_(timing == Timing::kStepped ? static_cast<hal::Clock*>(&sim_time_)
-                                        : &hal::SteadyClock::Instance()),
+      clock_(timing == Timing::kStepped ? static_cast<common::Clock*>(&sim_time_)
+                                        : &common::SteadyClock::Instance()),
       cot_theta_y_(config_.cot_theta_y),
       fixed_on_(config_.fixed_laser_on),
       rotating_on_(config_.rotating_laser_on) {
@@ -350,7 +349,8 @@ WeldCellWorld::WeldCellWorld(WeldCellWorldConfig config, Timing timing)
   // Throws for a bad workpiece now rather than at the first frame.
   (void)SceneAt(config_.initial_joints);
 
-  world_clock_ = std::make_unique<WorldClock>(&sim_time_, [this](hal::Duration t) { StepTo(t); });
+  world_clock_ =
+      std::make_unique<WorldClock>(&sim_time_, [this](common::Duration t) { StepTo(t); });
 
   hal::WeldRobotSim::Options o;
   for (int j = 0; j < robots::kWeld5Joints; ++j) {
@@ -378,19 +378,18 @@ WeldCellWorld::~WeldCellWorld() {
 const std::string& WeldCellWorld::backend() const { return robot_->backend(); }
 hal::WeldRobotSim& WeldCellWorld::robot() { return *robot_; }
 
-hal::Clock& WeldCellWorld::clock() {
+common::Clock& WeldCellWorld::clock() {
   if (timing_ == Timing::kStepped) return *world_clock_;
   return *clock_;
 }
 
-void WeldCellWorld::Step(hal::Duration dt) { StepTo(sim_time_.Now() + dt); }
+void WeldCellWorld::Step(common::Duration dt) { StepTo(sim_time_.Now() + dt); }
 
-void WeldCellWorld::StepTo(hal::Duration t) {
-  assert(timing_ == Timing::kStepped && "WeldCellWorld::Step: kStepped worlds only");
-  if (timing_ != Timing::kStepped) std::abort();
-  const hal::Duration period = Seconds(config_.step_period_s);
+void WeldCellWorld::StepTo(common::Duration t) {
+  KINEVIS_DEMAND(timing_ == Timing::kStepped);
+  const common::Duration period = common::FromSeconds(config_.step_period_s);
   while (sim_time_.Now() < t) {
-    const hal::Duration dt = std::min(period, t - sim_time_.Now());
+    const common::Duration dt = std::min(period, t - sim_time_.Now());
     sim_time_.Advance(dt);
     robot_->Step(dt);
   }
@@ -408,7 +407,7 @@ Eigen::Isometry3d WeldCellWorld::TrueScannerPose(
 void WeldCellWorld::SetLaserAngle(double cot_theta_y) {
   if (!std::isfinite(cot_theta_y)) {
     throw std::invalid_argument("weld-cell world: laser angle cot_theta_y must be finite, got " +
-                                internal::Num(cot_theta_y));
+                                common::Num(cot_theta_y));
   }
   std::lock_guard<std::mutex> lock(mutex_);
   cot_theta_y_ = cot_theta_y;
@@ -449,7 +448,7 @@ hal::CameraFormat WeldCellWorld::camera_format() const {
   return f;
 }
 
-ScanRecord WeldCellWorld::RenderScan(uint64_t frame_id, const vision::render::ImageView8& out,
+ScanRecord WeldCellWorld::RenderScan(uint64_t frame_id, const vision::ImageView8& out,
                                      vision::render::GroundTruth* truth) {
   ScanRecord record;
   record.frame_id = frame_id;
@@ -477,9 +476,9 @@ std::string WeldCellWorld::RegisterCamera() {
   if (!registered_.empty()) throw std::logic_error("weld-cell world: camera registered twice");
   hal::RegisterRenderSource(
       config_.camera_name, camera_format(),
-      [this](uint64_t frame_id, hal::Duration, hal::Image* image) {
-        RenderScan(frame_id, vision::render::ImageView8{image->data.data(), image->width,
-                                                        image->height, image->stride});
+      [this](uint64_t frame_id, common::Duration, hal::Image* image) {
+        RenderScan(frame_id, vision::ImageView8{image->data.data(), image->width, image->height,
+                                                image->stride});
         return std::error_code{};
       },
       config_.scanner_camera);
@@ -494,9 +493,9 @@ std::string WeldCellWorld::ServeCamera(const hal::FrameServerOptions& options) {
   frame_server_ = hal::FrameServer::Listen(
       hal::RenderFrameSource(
           camera_format(),
-          [this](uint64_t frame_id, hal::Duration, hal::Image* image) {
-            RenderScan(frame_id, vision::render::ImageView8{image->data.data(), image->width,
-                                                            image->height, image->stride});
+          [this](uint64_t frame_id, common::Duration, hal::Image* image) {
+            RenderScan(frame_id, vision::ImageView8{image->data.data(), image->width, image->height,
+                                                    image->stride});
             return std::error_code{};
           },
           config_.scanner_camera, clock()),

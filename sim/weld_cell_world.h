@@ -58,10 +58,10 @@
 #include <string>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/camera/camera.h"
-#include "hal/common/clock.h"
 #include "robots/weld5/weld5_model.h"
-#include "sim/hexapod_world.h"  // WorldClock, internal::WorldConfigReader, internal::Problems
+#include "sim/hexapod_world.h"  // WorldClock, internal::WorldConfigReader, common::Problems
 #include "vision/camera/camera_model.h"
 #include "vision/render/renderer.h"
 #include "vision/render/scenes/laser_scene.h"
@@ -149,7 +149,7 @@ robots::Weld5Model TrueWeld5Model(const WeldCellWorldConfig& config);
 // One rendered scan: when, at which actual joints, and where the scanner truly was.
 struct ScanRecord {
   uint64_t frame_id = 0;
-  hal::Duration time{0};                                   // world clock at the render
+  common::Duration time{0};                                // world clock at the render
   std::array<double, robots::kWeld5Joints> joints{};       // actual joints (controller values, SI)
   Eigen::Isometry3d X_0C = Eigen::Isometry3d::Identity();  // true scanner pose
   double cot_theta_y = 0.0;                                // the rotating laser's angle
@@ -160,7 +160,7 @@ class WeldCellWorld {
   enum class Timing { kStepped, kRealTime };
 
   // Builds the truth, opens the scanner camera model and starts serving Modbus. Throws
-  // std::invalid_argument for a bad config or camera model; hal::ConfigError / hal::HalError
+  // std::invalid_argument for a bad config or camera model; common::ConfigError / hal::HalError
   // when the controller cannot listen (WeldRobotSim).
   explicit WeldCellWorld(WeldCellWorldConfig config, Timing timing = Timing::kStepped);
   ~WeldCellWorld();  // unregisters the camera, stops the frame server and the controller
@@ -177,11 +177,11 @@ class WeldCellWorld {
   hal::WeldRobotSim& robot();
 
   // kStepped: a WorldClock (sleeping on it steps the world); kRealTime: the SteadyClock.
-  hal::Clock& clock();
+  common::Clock& clock();
   // kStepped only (aborts otherwise): advances time and the controller's motion by dt, in steps
   // of step_period_s.
-  void Step(hal::Duration dt);
-  void StepTo(hal::Duration t);
+  void Step(common::Duration dt);
+  void StepTo(common::Duration t);
 
   // The controller's actual joints now.
   std::array<double, robots::kWeld5Joints> joints() const;
@@ -204,13 +204,13 @@ class WeldCellWorld {
 
   // Renders a scan at the actual joints of this moment into `out` (camera-sized), logs and
   // returns its record. `truth` may be null.
-  ScanRecord RenderScan(uint64_t frame_id, const vision::render::ImageView8& out,
+  ScanRecord RenderScan(uint64_t frame_id, const vision::ImageView8& out,
                         vision::render::GroundTruth* truth = nullptr);
   // The scans rendered so far, oldest first (the last 10000).
   std::vector<ScanRecord> scan_log() const;
 
   // Registers the scanner as render source "sim:NAME" (config camera_name) for this process;
-  // returns the name. Throws hal::ConfigError when the name is taken. At most once.
+  // returns the name. Throws common::ConfigError when the name is taken. At most once.
   std::string RegisterCamera();
   // Serves the scanner's frames over TCP (hal::FrameServer, rendered on request at clock()
   // time); returns the source string "net:127.0.0.1:PORT". At most once. Throws hal::HalError
@@ -221,9 +221,9 @@ class WeldCellWorld {
   const WeldCellWorldConfig config_;
   const Timing timing_;
   const robots::Weld5Model true_;
-  hal::SimulatedClock sim_time_;
+  common::SimulatedClock sim_time_;
   std::unique_ptr<WorldClock> world_clock_;
-  hal::Clock* clock_;
+  common::Clock* clock_;
   std::unique_ptr<vision::CameraModel> camera_;
   std::unique_ptr<hal::WeldRobotSim> robot_;
 

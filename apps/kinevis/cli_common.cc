@@ -33,7 +33,7 @@ void RequestStop() { g_stop.store(true); }
 int RunGuarded(const std::string& command, const std::function<int()>& body) {
   try {
     return body();
-  } catch (const hal::ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     std::cerr << "kinevis " << command << ": " << e.what() << "\n";
     return kExitUsage;
   } catch (const hal::HalError& e) {
@@ -68,7 +68,7 @@ bool SetLogLevel(const std::string& level) {
   return true;
 }
 
-std::unique_ptr<hal::Camera> OpenRigCamera(const std::string& source, hal::Clock& clock,
+std::unique_ptr<hal::Camera> OpenRigCamera(const std::string& source, common::Clock& clock,
                                            int model_width, int model_height,
                                            const std::string& what, const std::string& model_spec) {
   std::unique_ptr<hal::Camera> camera = hal::OpenCamera(source, clock);

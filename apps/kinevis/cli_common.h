@@ -9,9 +9,11 @@
 #include <memory>
 #include <string>
 
+namespace kinevis::common {
+class Clock;
+}  // namespace kinevis::common
 namespace kinevis::hal {
 class Camera;
-class Clock;
 }  // namespace kinevis::hal
 
 namespace kinevis::cli {
@@ -30,14 +32,14 @@ bool StopRequested();
 void RequestStop();
 
 // Runs a command body; maps exceptions to exit codes and prints them on stderr as
-// "kinevis <command>: <message>": hal::ConfigError and other std::invalid_argument (bad
+// "kinevis <command>: <message>": common::ConfigError and other std::invalid_argument (bad
 // files or parameters found by a library) -> 2, hal::HalError -> 3, other -> 1.
 int RunGuarded(const std::string& command, const std::function<int()>& body);
 
 // A rig's camera: opened from `source` (docs/cameras.md) on `clock`, started, and checked to
 // deliver frames of the model's size. Throws hal::HalError when it cannot be started, and
 // std::invalid_argument "<what>: frames are WxH but the model <model_spec> is for wxh".
-std::unique_ptr<hal::Camera> OpenRigCamera(const std::string& source, hal::Clock& clock,
+std::unique_ptr<hal::Camera> OpenRigCamera(const std::string& source, common::Clock& clock,
                                            int model_width, int model_height,
                                            const std::string& what, const std::string& model_spec);
 

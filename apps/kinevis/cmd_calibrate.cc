@@ -46,7 +46,7 @@ struct CalibrateCameraOptions {
 std::vector<std::string> ExpandImages(const std::vector<std::string>& patterns) {
   std::vector<std::string> files;
   std::set<std::string> seen;
-  hal::ConfigProblems problems("--images");
+  common::Problems problems("--images");
   for (const std::string& pattern : patterns) {
     glob_t g{};
     const int rc = ::glob(pattern.c_str(), GLOB_MARK, nullptr, &g);
@@ -71,8 +71,9 @@ calibration::ChessboardCalibrationOptions ToOptions(const CalibrateCameraOptions
   std::smatch m;
   static const std::regex kBoard(R"(^\s*(\d+)\s*[xX]\s*(\d+)\s*$)");
   if (!std::regex_match(o.board, m, kBoard)) {
-    throw hal::ConfigError("--board \"" + o.board +
-                           "\": expected COLSxROWS, the inner corners of the chessboard, e.g. 9x6");
+    throw common::ConfigError(
+        "--board \"" + o.board +
+        "\": expected COLSxROWS, the inner corners of the chessboard, e.g. 9x6");
   }
   options.board_cols = std::stoi(m[1]);
   options.board_rows = std::stoi(m[2]);
@@ -83,7 +84,7 @@ calibration::ChessboardCalibrationOptions ToOptions(const CalibrateCameraOptions
     options.fix_k3 = false;
   }
   const std::string problems = options.Validate();
-  if (!problems.empty()) throw hal::ConfigError(problems);
+  if (!problems.empty()) throw common::ConfigError(problems);
   return options;
 }
 
@@ -218,8 +219,8 @@ int RunCalibrateCamera(const CalibrateCameraOptions& o) {
     std::error_code ec;
     std::filesystem::create_directories(o.overlay_dir, ec);
     if (ec || !std::filesystem::is_directory(o.overlay_dir)) {
-      throw hal::ConfigError("--overlay-dir: cannot create the directory \"" + o.overlay_dir +
-                             "\"" + (ec ? ": " + ec.message() : ""));
+      throw common::ConfigError("--overlay-dir: cannot create the directory \"" + o.overlay_dir +
+                                "\"" + (ec ? ": " + ec.message() : ""));
     }
   }
   spdlog::info("calibrate camera: {} images, board {}x{} inner corners, squares {} m", files.size(),

@@ -15,6 +15,7 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
+#include "common/clock.h"
 #include "hal/camera/camera.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/common/error.h"
@@ -26,8 +27,6 @@ const char* const kSourceHelp =
     "Camera source: v4l2:/dev/video0[,width=W,height=H,fps=F,format=PIX,latest], "
     "file:PATH[,loop,fps=F], images:GLOB[,loop,fps=F], sim:NAME, "
     "net:HOST:PORT[,timeout_ms=N] (docs/cameras.md)";
-
-double Seconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
 
 struct GrabOptions {
   std::string source;
@@ -41,8 +40,8 @@ int RunGrab(const GrabOptions& o) {
     std::error_code fs_error;
     std::filesystem::create_directories(o.out_dir, fs_error);
     if (fs_error || !std::filesystem::is_directory(o.out_dir)) {
-      throw hal::ConfigError("--out: cannot create the directory \"" + o.out_dir + "\"" +
-                             (fs_error ? ": " + fs_error.message() : ""));
+      throw common::ConfigError("--out: cannot create the directory \"" + o.out_dir + "\"" +
+                                (fs_error ? ": " + fs_error.message() : ""));
     }
   }
   std::unique_ptr<hal::Camera> camera = hal::OpenCamera(o.source);
@@ -56,7 +55,7 @@ int RunGrab(const GrabOptions& o) {
 
   hal::Image image;
   int grabbed = 0;
-  hal::Duration first_stamp{0}, last_stamp{0};
+  common::Duration first_stamp{0}, last_stamp{0};
   std::chrono::steady_clock::time_point first_wall, last_wall;
   std::printf("frame_id,timestamp_s%s\n", o.out_dir.empty() ? "" : ",file");
   while (!StopRequested() && (o.count == 0 || grabbed < o.count)) {
@@ -65,7 +64,7 @@ int RunGrab(const GrabOptions& o) {
       spdlog::warn("{}: no frame within {} ms", camera->name(), o.timeout_ms);
       continue;
     }
-    if (ec == hal::Errc::kClosed && camera->lifecycle() != hal::DeviceLifecycle::kFault) {
+    if (ec == hal::Errc::kClosed && camera->lifecycle() != common::DeviceLifecycle::kFault) {
       spdlog::info("{}: end of the stream", camera->name());
       break;
     }
@@ -79,13 +78,14 @@ int RunGrab(const GrabOptions& o) {
     last_wall = wall;
     ++grabbed;
     if (o.out_dir.empty()) {
-      std::printf("%" PRIu64 ",%.6f\n", image.frame_id, Seconds(image.timestamp));
+      std::printf("%" PRIu64 ",%.6f\n", image.frame_id, common::ToSeconds(image.timestamp));
     } else {
       char name[40];
       std::snprintf(name, sizeof name, "frame_%06" PRIu64 ".png", image.frame_id);
       const std::string path = (std::filesystem::path(o.out_dir) / name).string();
       hal::SaveImage(image, path);
-      std::printf("%" PRIu64 ",%.6f,%s\n", image.frame_id, Seconds(image.timestamp), path.c_str());
+      std::printf("%" PRIu64 ",%.6f,%s\n", image.frame_id, common::ToSeconds(image.timestamp),
+                  path.c_str());
     }
     std::fflush(stdout);
   }
@@ -93,7 +93,7 @@ int RunGrab(const GrabOptions& o) {
   // Rates over the frames delivered: by the camera's time stamps (the source's rate as the
   // program saw it) and by the wall clock (how fast this program got them).
   if (grabbed >= 2) {
-    const double stamp_span = Seconds(last_stamp - first_stamp);
+    const double stamp_span = common::ToSeconds(last_stamp - first_stamp);
     const double wall_span = std::chrono::duration<double>(last_wall - first_wall).count();
     std::printf("# %d frames, %.3f fps by time stamps, %.3f fps by wall clock\n", grabbed,
                 stamp_span > 0 ? (grabbed - 1) / stamp_span : 0.0,

@@ -50,13 +50,13 @@ int RunDump(const DumpOptions& o) {
   for (const std::string& text : o.filters) {
     std::string error;
     auto f = hal::ParseCanFilter(text, &error);
-    if (!f) throw hal::ConfigError("--filter: " + error);
+    if (!f) throw common::ConfigError("--filter: " + error);
     filters.push_back(*f);
   }
   std::ofstream log;
   if (!o.log_path.empty()) {
     log.open(o.log_path);
-    if (!log) throw hal::ConfigError("--log: cannot write \"" + o.log_path + "\"");
+    if (!log) throw common::ConfigError("--log: cannot write \"" + o.log_path + "\"");
   }
   auto bus = hal::OpenCanBus(o.backend);
   if (!filters.empty()) {
@@ -112,7 +112,7 @@ int RunSend(const SendOptions& o) {
   for (const std::string& text : o.frames) {
     std::string error;
     auto f = hal::ParseCanFrame(text, &error);
-    if (!f) throw hal::ConfigError(error);
+    if (!f) throw common::ConfigError(error);
     frames.push_back(*f);
   }
   auto bus = hal::OpenCanBus(o.backend);

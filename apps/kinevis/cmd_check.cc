@@ -9,8 +9,8 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
+#include "common/clock.h"
 #include "control/common/fixed_rate.h"
-#include "hal/common/clock.h"
 #include "hal/common/realtime.h"
 
 namespace kinevis::cli {
@@ -41,7 +41,7 @@ int RunCheckTiming(const TimingOptions& o) {
   std::printf("pacing an empty loop at %.1f Hz for %.1f s ...\n", o.rate_hz, o.seconds);
   std::fflush(stdout);
   const control::PeriodStatistics s =
-      control::MeasureLoopTiming(&hal::SteadyClock::Instance(), 1.0 / o.rate_hz, o.seconds);
+      control::MeasureLoopTiming(&common::SteadyClock::Instance(), 1.0 / o.rate_hz, o.seconds);
   std::printf(
       "periods: %llu, mean %.1f us (%.1f Hz), std %.1f us, min %.1f, p50 %.1f, p99 %.1f, max "
       "%.1f us\n",

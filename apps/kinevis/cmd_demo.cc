@@ -35,6 +35,7 @@
 #include "apps/kinevis/hexapod_jobs.h"
 #include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/weld_mount/mount_calibration_io.h"
+#include "common/units.h"
 #include "control/weld/weld_plan_io.h"
 #include "hal/can/can_bus_factory.h"
 #include "hal/can/virtual_can_bus.h"
@@ -72,7 +73,7 @@ class Checks {
 // 1. Six nodes answer a SYNC at once; the wire serialises them by identifier.
 void VirtualCanPart(Checks* checks) {
   std::printf("1. virtual CAN bus, 1 Mbit/s bit-rate model, simulated clock\n");
-  hal::SimulatedClock clock;
+  common::SimulatedClock clock;
   hal::VirtualCanNetwork::Options options;
   options.bitrate = 1'000'000;
   options.clock = &clock;
@@ -85,9 +86,9 @@ void VirtualCanPart(Checks* checks) {
   constexpr auto kPeriod = 1ms;
   int replies = 0;
   bool ordered = true;
-  hal::Duration worst_latency{0};
+  common::Duration worst_latency{0};
   for (int cycle = 0; cycle < kCycles; ++cycle) {
-    const hal::Duration t0 = clock.Now();
+    const common::Duration t0 = clock.Now();
     host->Send(hal::CanFrame::Standard(0x080));
     clock.Advance(100us);  // the SYNC is on every node after its 47-bit wire time
     // Nodes answer in reverse order of id: arbitration, not the order of sending, decides.
@@ -193,27 +194,26 @@ void ModbusPart(Checks* checks) {
 
 // Simulated time for part 4: whenever the host waits, time advances in 250 us steps and the
 // drive simulators serve the bus, so the run is deterministic and faster than real time.
-class ServicedClock final : public hal::Clock {
+class ServicedClock final : public common::Clock {
  public:
-  hal::Duration Now() const override { return time_.Now(); }
-  void SleepUntil(hal::Duration deadline) override {
+  common::Duration Now() const override { return time_.Now(); }
+  void SleepUntil(common::Duration deadline) override {
     while (time_.Now() < deadline) {
-      time_.AdvanceTo(std::min(deadline, time_.Now() + hal::Duration(250us)));
+      time_.AdvanceTo(std::min(deadline, time_.Now() + common::Duration(250us)));
       for (auto* sim : sims_) sim->Service();
     }
   }
   void Add(hal::CanopenDriveSim* sim) { sims_.push_back(sim); }
 
  private:
-  hal::SimulatedClock time_;
+  common::SimulatedClock time_;
   std::vector<hal::CanopenDriveSim*> sims_;
 };
 
 // 4. Six CiA 402 drives (a hexapod's legs) on one CAN bus.
 void DrivePart(Checks* checks) {
   std::printf("4. six CiA 402 drives over CANopen, virtual bus at 1 Mbit/s, simulated clock\n");
-  constexpr double kPi = 3.14159265358979323846;
-  constexpr double kCountsPerRad = 65536.0 / (2 * kPi);
+  constexpr double kCountsPerRad = 65536.0 / (2 * common::kPi);
   ServicedClock clock;
   hal::VirtualCanNetwork::Options net_options;
   net_options.bitrate = 1'000'000;
@@ -263,12 +263,12 @@ void DrivePart(Checks* checks) {
   double worst_error = 0.0;
   int cycle_errors = 0;
   net->ResetStatistics();
-  const hal::Duration t0 = clock.Now();
+  const common::Duration t0 = clock.Now();
   for (int k = 1; k <= kCycles + 50; ++k) {
-    const double s = k >= kCycles ? 1.0 : 0.5 - 0.5 * std::cos(kPi * k / kCycles);
+    const double s = k >= kCycles ? 1.0 : 0.5 - 0.5 * std::cos(common::kPi * k / kCycles);
     for (int i = 0; i < 6; ++i)
       drives[i]->SetTargetPosition(starts[i] + s * (targets[i] - starts[i]));
-    clock.SleepUntil(t0 + k * hal::Duration(kPeriod));  // fixed rate, not period + cycle time
+    clock.SleepUntil(t0 + k * common::Duration(kPeriod));  // fixed rate, not period + cycle time
     if (master.Cycle()) ++cycle_errors;
   }
   for (int i = 0; i < 6; ++i) {
@@ -285,16 +285,16 @@ void DrivePart(Checks* checks) {
 
   // Leg 4 falls silent: its heartbeat stops; the master must notice within the consumer time.
   sims[3]->StopHeartbeat(true);
-  const hal::Duration lost_at = clock.Now();
-  while (drives[3]->lifecycle() != hal::DeviceLifecycle::kFault &&
-         clock.Now() - lost_at < hal::Duration(200ms)) {
+  const common::Duration lost_at = clock.Now();
+  while (drives[3]->lifecycle() != common::DeviceLifecycle::kFault &&
+         clock.Now() - lost_at < common::Duration(200ms)) {
     clock.SleepFor(kPeriod);
     master.Cycle();
   }
   const double detect_ms = std::chrono::duration<double, std::milli>(clock.Now() - lost_at).count();
   std::printf("  leg4 heartbeat stopped: fault after %.0f ms (consumer time 30 ms): %s\n",
               detect_ms, drives[3]->last_error_text().c_str());
-  checks->Expect(drives[3]->lifecycle() == hal::DeviceLifecycle::kFault &&
+  checks->Expect(drives[3]->lifecycle() == common::DeviceLifecycle::kFault &&
                      drives[3]->status().fault_source == hal::DriveFaultSource::kLink,
                  "heartbeat loss of leg4 reported as a link fault");
   for (int k = 0; k < 100; ++k) {

@@ -31,6 +31,7 @@
 #include "apps/kinevis/diamond_rig.h"
 #include "calibration/diamond/camera_placement.h"
 #include "calibration/diamond/diamond_calibration_io.h"
+#include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/common/realtime.h"
 #include "hal/drive/rs485_drive.h"
@@ -43,7 +44,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
-constexpr double kDeg = M_PI / 180.0;
 constexpr char kTruthFile[] = "simulation_truth.yaml";
 
 double WallSince(std::chrono::steady_clock::time_point t0) {
@@ -52,7 +52,8 @@ double WallSince(std::chrono::steady_clock::time_point t0) {
 
 std::string Deg2(const Eigen::Vector2d& task) {
   char text[64];
-  std::snprintf(text, sizeof text, "(%.2f, %.2f) deg", task[0] / kDeg, task[1] / kDeg);
+  std::snprintf(text, sizeof text, "(%.2f, %.2f) deg", task[0] / common::kDeg,
+                task[1] / common::kDeg);
   return text;
 }
 
@@ -133,8 +134,8 @@ void WriteSimulationTruth(const std::string& dir, const DiamondRig& rig) {
   std::fprintf(f,
                "camera_pose: {position: [%.17g, %.17g, %.17g], rpy_deg: [%.17g, %.17g, "
                "%.17g]}\n",
-               X.translation().x(), X.translation().y(), X.translation().z(), ypr[2] / kDeg,
-               ypr[1] / kDeg, ypr[0] / kDeg);
+               X.translation().x(), X.translation().y(), X.translation().z(), ypr[2] / common::kDeg,
+               ypr[1] / common::kDeg, ypr[0] / common::kDeg);
   if (std::fclose(f) != 0) throw std::runtime_error("cannot write " + path);
 }
 
@@ -221,7 +222,7 @@ DiamondRecordSummary RecordDiamondDataset(DiamondRig* rig, const DiamondRecordOp
         break;
       }
       m = detector.Detect(
-          vision::render::ImageView8{image.data.data(), image.width, image.height, image.stride});
+          vision::ImageView8{image.data.data(), image.width, image.height, image.stride});
       if (m.found()) break;
       ++summary.retries;
     }
@@ -318,7 +319,7 @@ DiamondCalibrationRun CalibrateDiamondFromDataset(const DiamondCalibrateOptions&
                                   "x" + std::to_string(camera->height()));
     }
     const vision::MarkerDetection m = detector.Detect(
-        vision::render::ImageView8{pixels.data(), width, height, static_cast<size_t>(width)});
+        vision::ImageView8{pixels.data(), width, height, static_cast<size_t>(width)});
     if (!m.found()) {
       run.not_detected.push_back(where + ": " + vision::ToString(m.status));
       continue;
@@ -385,10 +386,10 @@ void PrintDiamondCalibration(const DiamondCalibrationRun& run) {
       "  R = %.3f mm +- %.3f, alpha = %.4f deg +- %.4f, beta = %.4f deg +- %.4f; joint "
       "offsets %.4f, %.4f deg (+- %.4f, %.4f)\n",
       1e3 * s.model.radius, 1e3 * s.parameters[calibration::kDiamondRadius].sigma,
-      s.model.alpha / kDeg, s.parameters[calibration::kDiamondAlpha].sigma / kDeg,
-      s.model.beta / kDeg, s.parameters[calibration::kDiamondBeta].sigma / kDeg,
-      s.model.joint_offsets[0] / kDeg, s.model.joint_offsets[1] / kDeg, s.offset_sigma[0] / kDeg,
-      s.offset_sigma[1] / kDeg);
+      s.model.alpha / common::kDeg, s.parameters[calibration::kDiamondAlpha].sigma / common::kDeg,
+      s.model.beta / common::kDeg, s.parameters[calibration::kDiamondBeta].sigma / common::kDeg,
+      s.model.joint_offsets[0] / common::kDeg, s.model.joint_offsets[1] / common::kDeg,
+      s.offset_sigma[0] / common::kDeg, s.offset_sigma[1] / common::kDeg);
   const calibration::IdentifiabilityReport& id = s.identifiability;
   std::printf("identifiability: rank %d of %d free parameters, condition number %.1f\n", id.rank,
               id.free_parameters, id.condition_number);
@@ -419,8 +420,9 @@ void PrintDiamondCalibration(const DiamondCalibrationRun& run) {
         "mrad (%+.4f %%); offset half-difference %+.4f mdeg; camera %.4f deg, %.3f mm off\n",
         kTruthFile, 1e3 * (s.model.radius - t.radius), 100 * (s.model.radius / t.radius - 1),
         1e3 * (s.model.alpha - t.alpha), 100 * (s.model.alpha / t.alpha - 1),
-        1e3 * (s.model.beta - t.beta), 100 * (s.model.beta / t.beta - 1), 1e3 * (h - h_true) / kDeg,
-        camera_angle / kDeg, 1e3 * (s.X_OC.translation() - run.truth.X_OC.translation()).norm());
+        1e3 * (s.model.beta - t.beta), 100 * (s.model.beta / t.beta - 1),
+        1e3 * (h - h_true) / common::kDeg, camera_angle / common::kDeg,
+        1e3 * (s.X_OC.translation() - run.truth.X_OC.translation()).norm());
   }
   std::printf("wrote %s\n", run.out.c_str());
   if (!run.identified) {
@@ -538,13 +540,13 @@ void CheckLine(const robots::DiamondModel& model, const control::DiamondLine& li
 // newest frame processed since the last one.
 class AsyncMarkerSource final : public control::MarkerFeatureSource {
  public:
-  AsyncMarkerSource(hal::Camera* camera, const std::string& name, hal::Clock* clock,
+  AsyncMarkerSource(hal::Camera* camera, const std::string& name, common::Clock* clock,
                     const vision::MarkerDetectorOptions& options)
       : camera_(camera),
         name_(name),
         clock_(clock),
         inner_(
-            [this](hal::Duration, vision::render::ImageView8* view, hal::Duration* stamp) {
+            [this](common::Duration, vision::ImageView8* view, common::Duration* stamp) {
               const std::error_code ec = camera_->Grab(&image_, 100ms);
               if (ec) {
                 if (ec != hal::Errc::kTimeout) Fail("camera " + name_ + ": " + ec.message());
@@ -554,8 +556,8 @@ class AsyncMarkerSource final : public control::MarkerFeatureSource {
                 Fail("camera " + name_ + ": frames are not mono8");
                 return false;
               }
-              *view = vision::render::ImageView8{image_.data.data(), image_.width, image_.height,
-                                                 image_.stride};
+              *view = vision::ImageView8{image_.data.data(), image_.width, image_.height,
+                                         image_.stride};
               *stamp = image_.timestamp;
               return true;
             },
@@ -581,7 +583,7 @@ class AsyncMarkerSource final : public control::MarkerFeatureSource {
   AsyncMarkerSource(const AsyncMarkerSource&) = delete;
   AsyncMarkerSource& operator=(const AsyncMarkerSource&) = delete;
 
-  bool Poll(hal::Duration, control::MarkerFrame* frame) override {
+  bool Poll(common::Duration, control::MarkerFrame* frame) override {
     std::lock_guard<std::mutex> lock(mutex_);
     if (published_ == delivered_) return false;
     *frame = latest_;
@@ -602,7 +604,7 @@ class AsyncMarkerSource final : public control::MarkerFeatureSource {
 
   hal::Camera* camera_;
   std::string name_;
-  hal::Clock* clock_;
+  common::Clock* clock_;
   hal::Image image_;
   mutable std::mutex mutex_;
   std::string error_;
@@ -679,7 +681,7 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
     camera_source = std::move(a);
   } else {
     camera_source = std::make_unique<control::DetectedMarkerSource>(
-        [&](hal::Duration, vision::render::ImageView8* view, hal::Duration* stamp) {
+        [&](common::Duration, vision::ImageView8* view, common::Duration* stamp) {
           const std::error_code ec = cam.Grab(&image, 0ms);
           if (ec) {
             if (ec != hal::Errc::kTimeout && run.camera_error.empty()) {
@@ -691,8 +693,7 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
             run.camera_error = "camera " + rig->camera_name() + ": frames are not mono8";
             return false;
           }
-          *view = vision::render::ImageView8{image.data.data(), image.width, image.height,
-                                             image.stride};
+          *view = vision::ImageView8{image.data.data(), image.width, image.height, image.stride};
           *stamp = image.timestamp;
           return true;
         },
@@ -851,7 +852,8 @@ void PrintDiamondServo(const DiamondServoRun& run, const DiamondServoOptions& o)
     std::printf(
         "  simulation truth: true path straightness %.4f cm (%d points)%s; final (phi, gamma) "
         "%.3f deg from --to",
-        100 * run.true_straightness, run.true_points, position, run.true_final_task_error / kDeg);
+        100 * run.true_straightness, run.true_points, position,
+        run.true_final_task_error / common::kDeg);
     if (!pd) std::printf("; true marker %.3f px from the target", run.true_final_pixel_error);
     std::printf("\n");
   }
@@ -885,8 +887,8 @@ struct ServoCommandOptions {
 };
 
 int RunServo(ServoCommandOptions o) {
-  o.servo.from = Eigen::Vector2d(o.from_deg[0], o.from_deg[1]) * kDeg;
-  o.servo.to = Eigen::Vector2d(o.to_deg[0], o.to_deg[1]) * kDeg;
+  o.servo.from = Eigen::Vector2d(o.from_deg[0], o.from_deg[1]) * common::kDeg;
+  o.servo.to = Eigen::Vector2d(o.to_deg[0], o.to_deg[1]) * common::kDeg;
   o.servo.law = o.law == "ibvs" ? DiamondServoLaw::kMarkerIbvs : DiamondServoLaw::kTaskPd;
   o.servo.kind = o.kind == "task" ? control::DiamondLineKind::kTaskLine
                                   : control::DiamondLineKind::kTopViewLine;
@@ -915,7 +917,7 @@ int RunPlanCamera(const PlanCameraOptions& o) {
   options.roi_polar_extent = o.roi == "quarter" ? M_PI / 2 : M_PI;
   std::string lens;
   if (o.half_angle_deg > 0) {
-    options.half_view_angle = o.half_angle_deg * kDeg;
+    options.half_view_angle = o.half_angle_deg * common::kDeg;
     lens = "--half-angle-deg";
   } else {
     const std::unique_ptr<vision::CameraModel> camera = vision::OpenCameraModel(o.camera);
@@ -930,8 +932,8 @@ int RunPlanCamera(const PlanCameraOptions& o) {
   std::printf(
       "camera placement (seed 001 eq. 29-33): J(r) = q S_ROI - S_waste; R = %.2f cm, beta = "
       "%.0f deg (%s sphere), half view angle theta = %.2f deg from %s\n",
-      100 * o.radius, options.roi_polar_extent / kDeg, o.roi.c_str(),
-      options.half_view_angle / kDeg, lens.c_str());
+      100 * o.radius, options.roi_polar_extent / common::kDeg, o.roi.c_str(),
+      options.half_view_angle / common::kDeg, lens.c_str());
   std::printf("  %6s | %12s %14s %12s %14s | %s\n", "q", "r* (cm)", "J(r*) (cm^2)", "dth/dd(0)",
               "delta_max(deg)", "note");
   int found = 0;
@@ -948,7 +950,7 @@ int RunPlanCamera(const PlanCameraOptions& o) {
     std::printf("  %6.2f | %12.2f %14.1f %12.4f %14.2f | %s\n", q, 100 * plan.best_distance,
                 1e4 * plan.at_best.benefit,
                 calibration::SphereViewAngleRate(o.radius, plan.best_distance, 0.0),
-                calibration::MaxVisibleCentralAngle(o.radius, plan.best_distance) / kDeg,
+                calibration::MaxVisibleCentralAngle(o.radius, plan.best_distance) / common::kDeg,
                 plan.at_best.waste < 0 ? "S_waste < 0 there (the sphere overfills the view)" : "");
   }
   {
@@ -973,7 +975,7 @@ int RunPlanCamera(const PlanCameraOptions& o) {
       "seed 001 reports 44.62 cm for R = 20 cm, q = 5 without stating its lens's view angle: eq. "
       "(33) puts the optimum there for theta = %.2f deg (beta = pi; planned with it: %.2f cm). "
       "The optimum moves with theta: a narrower view puts the camera farther away.\n",
-      seed_theta / kDeg, seed_plan.found ? 100 * seed_plan.best_distance : NAN);
+      seed_theta / common::kDeg, seed_plan.found ? 100 * seed_plan.best_distance : NAN);
   if (!o.plot.empty()) {
     calibration::WriteBenefitPlot(o.plot, options, o.q);
     std::printf("wrote %s\n", o.plot.c_str());

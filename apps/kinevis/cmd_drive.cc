@@ -17,11 +17,11 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
+#include "common/clock.h"
 #include "hal/can/can_bus_factory.h"
 #include "hal/canopen/canopen_codec.h"
 #include "hal/canopen/canopen_master.h"
 #include "hal/common/backend_spec.h"
-#include "hal/common/clock.h"
 #include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
 #include "hal/drive/rs485_drive.h"
@@ -30,7 +30,7 @@ namespace kinevis::cli {
 namespace {
 
 using namespace std::chrono_literals;
-using hal::Duration;
+using common::Duration;
 
 struct DriveCliOptions {
   std::string backend;
@@ -60,12 +60,12 @@ class Session {
     const bool can = scheme == "socketcan" || scheme == "slcan" || scheme == "virtual";
     if (protocol.empty()) protocol = scheme == "modbus-rtu" ? "rs485" : "cia402";
     if (protocol == "cia402" && !can) {
-      throw hal::ConfigError("backend \"" + o.backend + "\": --protocol cia402 needs a CAN " +
-                             "backend (socketcan:, slcan:, virtual:)");
+      throw common::ConfigError("backend \"" + o.backend + "\": --protocol cia402 needs a CAN " +
+                                "backend (socketcan:, slcan:, virtual:)");
     }
     if (protocol == "rs485" && scheme != "modbus-rtu") {
-      throw hal::ConfigError("backend \"" + o.backend + "\": --protocol rs485 needs a " +
-                             "modbus-rtu: backend");
+      throw common::ConfigError("backend \"" + o.backend + "\": --protocol rs485 needs a " +
+                                "modbus-rtu: backend");
     }
     CheckNodes(protocol == "rs485" ? 247 : 127);
     const auto period = std::chrono::microseconds(std::llround(o.cycle_ms * 1000));
@@ -96,7 +96,7 @@ class Session {
   }
 
   const std::vector<hal::Cia402HostDrive*>& drives() const { return drives_; }
-  hal::Clock& clock() const { return can_ ? can_->clock() : rs485_->clock(); }
+  common::Clock& clock() const { return can_ ? can_->clock() : rs485_->clock(); }
 
   void ConfigureAll() {
     if (can_) {
@@ -153,7 +153,7 @@ class Session {
     if (options_.nodes.empty()) problems += " none given;";
     if (!problems.empty()) {
       problems.pop_back();
-      throw hal::ConfigError("--nodes:" + problems);
+      throw common::ConfigError("--nodes:" + problems);
     }
   }
 
@@ -167,7 +167,7 @@ void PrintStatus(const hal::Cia402HostDrive& d) {
   const hal::DriveStatus s = d.status();
   char error[16];
   std::snprintf(error, sizeof error, "0x%04X", s.error_code);
-  std::string line = d.name() + ": " + hal::ToString(d.lifecycle()) + ", state '" +
+  std::string line = d.name() + ": " + common::ToString(d.lifecycle()) + ", state '" +
                      hal::ToString(s.state) + "', mode " +
                      (s.mode ? hal::ToString(*s.mode) : "unknown") + ", position " +
                      std::to_string(s.position) + " rad, velocity " + std::to_string(s.velocity) +
@@ -258,7 +258,7 @@ int RunMove(const DriveCliOptions& o) {
       const double s = t >= o.duration_s ? 1.0 : 0.5 * (1 - std::cos(M_PI * t / o.duration_s));
       for (size_t i = 0; i < session.drives().size(); ++i) {
         hal::Cia402HostDrive* d = session.drives()[i];
-        if (d->lifecycle() != hal::DeviceLifecycle::kActive) continue;
+        if (d->lifecycle() != common::DeviceLifecycle::kActive) continue;
         if (std::error_code ec = d->SetTargetPosition(start[i] + s * (o.position - start[i]));
             ec && !refused) {
           refused = ec;
@@ -271,7 +271,7 @@ int RunMove(const DriveCliOptions& o) {
   bool reached = !refused;
   bool failed = false;
   for (hal::Cia402HostDrive* d : session.drives()) {
-    failed = failed || d->lifecycle() == hal::DeviceLifecycle::kFault;
+    failed = failed || d->lifecycle() == common::DeviceLifecycle::kFault;
     reached = reached && std::fabs(d->status().position - o.position) <= o.tolerance;
   }
   PrintAll(session);

@@ -13,11 +13,11 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
+#include "common/clock.h"
 #include "hal/can/can_bus_factory.h"
 #include "hal/can/virtual_can_bus.h"
 #include "hal/canopen/canopen_codec.h"
 #include "hal/common/backend_spec.h"
-#include "hal/common/clock.h"
 #include "hal/common/error.h"
 #include "hal/mock/canopen_drive_sim.h"
 #include "hal/mock/rs485_drive_sim.h"
@@ -58,7 +58,7 @@ void CheckIds(const std::vector<int>& ids, int min, int max, const std::string& 
   if (ids.empty()) problems += " no ids given;";
   if (!problems.empty()) {
     problems.pop_back();
-    throw hal::ConfigError(option + ":" + problems);
+    throw common::ConfigError(option + ":" + problems);
   }
 }
 
@@ -66,18 +66,19 @@ int RunCanDrives(const CanDriveOptions& o) {
   CheckIds(o.nodes, 1, hal::canopen::kMaxNodeId, "--nodes");
   const bool slcan = o.transport == "slcan-pty";
   if (!slcan && o.transport.rfind("socketcan:", 0) != 0) {
-    throw hal::ConfigError("--transport \"" + o.transport +
-                           "\": expected slcan-pty or socketcan:IFACE");
+    throw common::ConfigError("--transport \"" + o.transport +
+                              "\": expected slcan-pty or socketcan:IFACE");
   }
   if (slcan && hal::SlcanBitrateCode(o.bitrate) < 0) {
-    throw hal::ConfigError("--bitrate " + std::to_string(o.bitrate) +
-                           ": an slcan adapter knows 10000, 20000, 50000, 100000, 125000, 250000, "
-                           "500000, 800000 and 1000000 bit/s");
+    throw common::ConfigError(
+        "--bitrate " + std::to_string(o.bitrate) +
+        ": an slcan adapter knows 10000, 20000, 50000, 100000, 125000, 250000, "
+        "500000, 800000 and 1000000 bit/s");
   }
   if (!slcan && !o.link.empty()) {
-    throw hal::ConfigError("--link applies to --transport slcan-pty only");
+    throw common::ConfigError("--link applies to --transport slcan-pty only");
   }
-  hal::Clock& clock = hal::SteadyClock::Instance();
+  common::Clock& clock = common::SteadyClock::Instance();
 
   // Declaration order is destruction order reversed: the simulators stop before their buses go,
   // the adapter before the pty it serves.
@@ -132,7 +133,7 @@ int RunCanDrives(const CanDriveOptions& o) {
 
 int RunRs485Drives(const Rs485DriveOptions& o) {
   CheckIds(o.ids, 1, 247, "--ids");
-  if (o.baud <= 0) throw hal::ConfigError("--baud " + std::to_string(o.baud) + " must be > 0");
+  if (o.baud <= 0) throw common::ConfigError("--baud " + std::to_string(o.baud) + " must be > 0");
   hal::PtyPair pty;
   std::string path = pty.slave_path();
   if (!o.link.empty()) {
@@ -148,7 +149,7 @@ int RunRs485Drives(const Rs485DriveOptions& o) {
     d.serial_number = static_cast<uint32_t>(id);
     options.drives.push_back(d);
   }
-  hal::Rs485DriveSim sim(pty.master_fd(), path, &hal::SteadyClock::Instance(), options);
+  hal::Rs485DriveSim sim(pty.master_fd(), path, &common::SteadyClock::Instance(), options);
   sim.Start();
   spdlog::info("{}: {} simulated RS485 drive(s)", sim.backend(), o.ids.size());
   return ServeUntilStopped(sim.backend());

@@ -24,6 +24,7 @@
 #include "calibration/hexapod/hexapod_dataset.h"
 #include "calibration/hexapod/pose_planner.h"
 #include "calibration/hexapod/reprojection_image.h"
+#include "common/units.h"
 #include "control/hexapod/image_leg_features.h"
 #include "control/hexapod/leg_servo.h"
 #include "control/hexapod/servo_loop.h"
@@ -38,7 +39,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using robots::kHexapodLegs;
-constexpr double kDeg = M_PI / 180.0;
 
 // --- record -------------------------------------------------------------------------------------
 
@@ -224,7 +224,7 @@ HexapodCalibrationRun CalibrateHexapodFromDataset(const HexapodCalibrateOptions&
   int width = 0, height = 0;
   std::vector<uint8_t> pixels =
       calibration::ReadDatasetImage(dataset, dataset.poses.front(), &width, &height);
-  vision::render::ImageView8 view{pixels.data(), width, height, static_cast<size_t>(width)};
+  vision::ImageView8 view{pixels.data(), width, height, static_cast<size_t>(width)};
   calibration::WriteReprojectionImage(run.image, view, *camera, run.calibration.result,
                                       dataset.nominal);
   return run;
@@ -324,9 +324,9 @@ int RunCalibrate(CalibrateCommandOptions o) {
 Eigen::Isometry3d PoseFromValues(const std::vector<double>& v) {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
   X.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
-  X.linear() = (Eigen::AngleAxisd(v[5] * kDeg, Eigen::Vector3d::UnitZ()) *
-                Eigen::AngleAxisd(v[4] * kDeg, Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(v[3] * kDeg, Eigen::Vector3d::UnitX()))
+  X.linear() = (Eigen::AngleAxisd(v[5] * common::kDeg, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(v[4] * common::kDeg, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(v[3] * common::kDeg, Eigen::Vector3d::UnitX()))
                    .toRotationMatrix();
   return X;
 }
@@ -455,7 +455,7 @@ void PrintHexapodServo(const HexapodServoRun& run, const HexapodServoOptions& o)
   if (!run.last_not_seen.empty()) std::printf("  last frame: %s\n", run.last_not_seen.c_str());
   if (run.simulated) {
     std::printf("  simulation truth: platform %.2f mm and %.3f deg from the target pose\n",
-                1e3 * run.true_position_error, run.true_rotation_error / kDeg);
+                1e3 * run.true_position_error, run.true_rotation_error / common::kDeg);
   }
   if (!o.log.empty()) std::printf("wrote %s\n", o.log.c_str());
   if (!o.plot.empty()) std::printf("wrote %s\n", o.plot.c_str());

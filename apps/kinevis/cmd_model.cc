@@ -12,6 +12,7 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
+#include "common/units.h"
 #include "hal/common/error.h"
 #include "robots/io/robot_description.h"
 #include "vision/camera/camera_file.h"
@@ -19,9 +20,6 @@
 
 namespace kinevis::cli {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDeg = kPi / 180.0;
 
 struct ModelOptions {
   std::string robot_file;              // empty: the built-in default description
@@ -41,7 +39,7 @@ struct ModelOptions {
 
 void RequireCount(const std::vector<double>& v, size_t n, const std::string& option,
                   const std::string& what) {
-  hal::ConfigProblems problems(option);
+  common::Problems problems(option);
   if (v.size() != n) {
     problems.Add("need " + std::to_string(n) + " comma-separated values " + what + ", got " +
                  std::to_string(v.size()));
@@ -56,9 +54,9 @@ void RequireCount(const std::vector<double>& v, size_t n, const std::string& opt
 Eigen::Isometry3d PoseFromXyzRpyDeg(const std::vector<double>& v) {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
   X.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
-  X.linear() = (Eigen::AngleAxisd(v[5] * kDeg, Eigen::Vector3d::UnitZ()) *
-                Eigen::AngleAxisd(v[4] * kDeg, Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(v[3] * kDeg, Eigen::Vector3d::UnitX()))
+  X.linear() = (Eigen::AngleAxisd(v[5] * common::kDeg, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(v[4] * common::kDeg, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(v[3] * common::kDeg, Eigen::Vector3d::UnitX()))
                    .toRotationMatrix();
   return X;
 }
@@ -68,7 +66,7 @@ Eigen::Vector3d RpyDeg(const Eigen::Matrix3d& R) {
   const double pitch = std::asin(std::clamp(-R(2, 0), -1.0, 1.0));
   const double roll = std::atan2(R(2, 1), R(2, 2));
   const double yaw = std::atan2(R(1, 0), R(0, 0));
-  return Eigen::Vector3d(roll, pitch, yaw) / kDeg;
+  return Eigen::Vector3d(roll, pitch, yaw) / common::kDeg;
 }
 
 robots::HexapodDescription Hexapod(const ModelOptions& o) {
@@ -142,7 +140,7 @@ int RunHexapodIk(const ModelOptions& o) {
 
 int RunHexapodFk(const ModelOptions& o) {
   if (o.legs.empty() == o.actuators.empty()) {
-    throw hal::ConfigError("model hexapod fk: give exactly one of --legs or --actuators");
+    throw common::ConfigError("model hexapod fk: give exactly one of --legs or --actuators");
   }
   const robots::HexapodDescription d = Hexapod(o);
   robots::Vector6d q;
@@ -190,23 +188,25 @@ int RunHexapodFk(const ModelOptions& o) {
 
 robots::Vector5d JointsFromCli(const std::vector<double>& v) {
   robots::Vector5d q;
-  q << v[0] * kDeg, v[1] * kDeg, v[2] * 1e-3, v[3] * kDeg, v[4] * kDeg;
+  q << v[0] * common::kDeg, v[1] * common::kDeg, v[2] * 1e-3, v[3] * common::kDeg,
+      v[4] * common::kDeg;
   return q;
 }
 
 std::string JointsText(const robots::Vector5d& q) {
   char text[160];
   std::snprintf(text, sizeof text, "θ1 %.4f°, θ2 %.4f°, pz3 %.4f mm, θ4 %.4f°, θ5 %.4f°",
-                q(0) / kDeg, q(1) / kDeg, q(2) * 1e3, q(3) / kDeg, q(4) / kDeg);
+                q(0) / common::kDeg, q(1) / common::kDeg, q(2) * 1e3, q(3) / common::kDeg,
+                q(4) / common::kDeg);
   return text;
 }
 
 nlohmann::json JointsJson(const robots::Vector5d& q) {
-  return {{"theta1_deg", q(0) / kDeg},
-          {"theta2_deg", q(1) / kDeg},
+  return {{"theta1_deg", q(0) / common::kDeg},
+          {"theta2_deg", q(1) / common::kDeg},
           {"pz3_mm", q(2) * 1e3},
-          {"theta4_deg", q(3) / kDeg},
-          {"theta5_deg", q(4) / kDeg}};
+          {"theta4_deg", q(3) / common::kDeg},
+          {"theta5_deg", q(4) / common::kDeg}};
 }
 
 // First joint outside its limits, or -1.
@@ -247,7 +247,7 @@ int RunWeld5Ik(const ModelOptions& o) {
   RequireCount(o.tip_mm, 3, "--tip", "x,y,z (mm, frame 0)");
   RequireCount(o.axis, 3, "--axis", "ux,uy,uz (frame 0)");
   const Eigen::Vector3d axis(o.axis[0], o.axis[1], o.axis[2]);
-  if (!(axis.norm() > 1e-9)) throw hal::ConfigError("--axis: must not be the zero vector");
+  if (!(axis.norm() > 1e-9)) throw common::ConfigError("--axis: must not be the zero vector");
   const robots::Weld5Description d = Weld5(o);
   robots::Vector5d guess = 0.5 * (d.model.q_min + d.model.q_max);
   if (!o.joints.empty()) {
@@ -256,14 +256,14 @@ int RunWeld5Ik(const ModelOptions& o) {
   }
   const Eigen::Vector3d p(o.tip_mm[0] * 1e-3, o.tip_mm[1] * 1e-3, o.tip_mm[2] * 1e-3);
   robots::Weld5IkOptions options;
-  if (o.axis_tolerance_deg >= 0) options.axis_tolerance = o.axis_tolerance_deg * kDeg;
+  if (o.axis_tolerance_deg >= 0) options.axis_tolerance = o.axis_tolerance_deg * common::kDeg;
   const robots::Weld5IkResult r = robots::Weld5InverseKinematics(d.model, p, axis, guess, options);
   if (o.json) {
     nlohmann::json out{{"robot", d.name},
                        {"status", robots::ToString(r.status)},
                        {"iterations", r.iterations},
                        {"position_error_mm", r.position_error * 1e3},
-                       {"axis_error_deg", r.axis_error / kDeg},
+                       {"axis_error_deg", r.axis_error / common::kDeg},
                        {"limiting_joint", r.limiting_joint_name}};
     if (r.converged()) out["joints"] = JointsJson(r.q);
     std::cout << out.dump(2) << "\n";
@@ -272,12 +272,12 @@ int RunWeld5Ik(const ModelOptions& o) {
                 robots::ToString(r.status), r.iterations);
     if (r.converged()) {
       std::printf("joints: %s\nerrors: tip %.3g mm, axis %.3g°\n", JointsText(r.q).c_str(),
-                  r.position_error * 1e3, r.axis_error / kDeg);
+                  r.position_error * 1e3, r.axis_error / common::kDeg);
     } else if (r.status == robots::Weld5IkStatus::kJointLimit) {
       std::printf("the target needs %s outside its limits\n", r.limiting_joint_name);
     } else {
       std::printf("the target is not reachable (closest: tip %.3g mm, axis %.3g° off)\n",
-                  r.position_error * 1e3, r.axis_error / kDeg);
+                  r.position_error * 1e3, r.axis_error / common::kDeg);
     }
   }
   return r.converged() ? kExitOk : kExitJobFailed;
@@ -298,8 +298,9 @@ void PrintDiamondPose(const robots::DiamondModel& m, const robots::DiamondData& 
   if (json) {
     nlohmann::json out{{"robot", name}, {"ok", reach.ok()}, {"problem", reach.Describe()}};
     if (data.valid) {
-      out["joints_deg"] = {data.q(0) / kDeg, data.q(1) / kDeg};
-      out["task_deg"] = {{"phi", data.task(0) / kDeg}, {"gamma", data.task(1) / kDeg}};
+      out["joints_deg"] = {data.q(0) / common::kDeg, data.q(1) / common::kDeg};
+      out["task_deg"] = {{"phi", data.task(0) / common::kDeg},
+                         {"gamma", data.task(1) / common::kDeg}};
       out["tool_point_mm"] = {data.p_O_T.x() * 1e3, data.p_O_T.y() * 1e3, data.p_O_T.z() * 1e3};
       out["singularity"] = robots::ToString(sing.kind);
       out["task_condition"] = sing.task_condition;
@@ -309,8 +310,9 @@ void PrintDiamondPose(const robots::DiamondModel& m, const robots::DiamondData& 
   }
   std::printf("robot: %s\n", name.c_str());
   if (data.valid) {
-    std::printf("joints: q1 %.4f°, q2 %.4f°\n", data.q(0) / kDeg, data.q(1) / kDeg);
-    std::printf("task: φ %.4f°, γ %.4f°\n", data.task(0) / kDeg, data.task(1) / kDeg);
+    std::printf("joints: q1 %.4f°, q2 %.4f°\n", data.q(0) / common::kDeg, data.q(1) / common::kDeg);
+    std::printf("task: φ %.4f°, γ %.4f°\n", data.task(0) / common::kDeg,
+                data.task(1) / common::kDeg);
     std::printf("tool point (RCM frame): %.4f %.4f %.4f mm\n", data.p_O_T.x() * 1e3,
                 data.p_O_T.y() * 1e3, data.p_O_T.z() * 1e3);
     std::printf("condition of d(φ,γ)/dq: %.3g (%s)\n", sing.task_condition,
@@ -324,7 +326,7 @@ int RunDiamondFk(const ModelOptions& o) {
   RequireCount(o.diamond_joints, 2, "--joints", "q1,q2 (deg)");
   const robots::DiamondDescription d = Diamond(o);
   robots::DiamondData data;
-  const Eigen::Vector2d q(o.diamond_joints[0] * kDeg, o.diamond_joints[1] * kDeg);
+  const Eigen::Vector2d q(o.diamond_joints[0] * common::kDeg, o.diamond_joints[1] * common::kDeg);
   const robots::DiamondReachability reach = robots::ForwardKinematics(d.model, q, &data);
   PrintDiamondPose(d.model, data, o.json, d.name, reach);
   return reach.ok() ? kExitOk : kExitJobFailed;
@@ -332,18 +334,19 @@ int RunDiamondFk(const ModelOptions& o) {
 
 int RunDiamondIk(const ModelOptions& o) {
   if (o.task.empty() == o.direction.empty()) {
-    throw hal::ConfigError("model diamond ik: give exactly one of --task or --direction");
+    throw common::ConfigError("model diamond ik: give exactly one of --task or --direction");
   }
   const robots::DiamondDescription d = Diamond(o);
   Eigen::Vector2d q;
   robots::DiamondReachability reach;
   if (!o.task.empty()) {
     RequireCount(o.task, 2, "--task", "phi,gamma (deg)");
-    reach = robots::InverseKinematics(d.model, Eigen::Vector2d(o.task[0], o.task[1]) * kDeg, &q);
+    reach = robots::InverseKinematics(d.model, Eigen::Vector2d(o.task[0], o.task[1]) * common::kDeg,
+                                      &q);
   } else {
     RequireCount(o.direction, 3, "--direction", "ux,uy,uz (RCM frame)");
     const Eigen::Vector3d u(o.direction[0], o.direction[1], o.direction[2]);
-    if (!(u.norm() > 1e-12)) throw hal::ConfigError("--direction: must not be the zero vector");
+    if (!(u.norm() > 1e-12)) throw common::ConfigError("--direction: must not be the zero vector");
     reach = robots::InverseKinematicsFromDirection(d.model, u, &q);
   }
   robots::DiamondData data;
@@ -364,7 +367,7 @@ struct ProjectOptions {
 
 int RunProject(const ProjectOptions& o) {
   if (o.point.empty() == o.pixel.empty()) {
-    throw hal::ConfigError("project: give exactly one of --point or --pixel");
+    throw common::ConfigError("project: give exactly one of --point or --pixel");
   }
   const std::unique_ptr<vision::CameraModel> camera = vision::OpenCameraModel(o.camera);
   nlohmann::json out{{"camera", o.camera},
@@ -426,7 +429,7 @@ int RunProject(const ProjectOptions& o) {
                     ray.p_C_O.x(), ray.p_C_O.y(), ray.p_C_O.z(), ray.d_C.x(), ray.d_C.y(),
                     ray.d_C.z());
         if (camera->IsCentral()) {
-          const double angle = std::acos(std::clamp(ray.d_C.z(), -1.0, 1.0)) / kDeg;
+          const double angle = std::acos(std::clamp(ray.d_C.z(), -1.0, 1.0)) / common::kDeg;
           std::printf("angle from the camera's z axis: %.4f°\n", angle);
         }
         if (on_ground) {

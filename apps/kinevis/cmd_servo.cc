@@ -16,6 +16,7 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
+#include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/dynamixel/control_table.h"
 #include "hal/dynamixel/dynamixel_bus.h"
@@ -24,8 +25,6 @@
 
 namespace kinevis::cli {
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
 
 struct ServoOptions {
   std::string backend;
@@ -58,9 +57,9 @@ hal::DxlControlTable LoadTable(const ServoOptions& o) {
     table = hal::DxlControlTable::LoadModel(o.protocol == 2 ? "xm430-w350" : "mx-12w");
   }
   if (o.protocol != 0 && o.protocol != table.protocol()) {
-    throw hal::ConfigError("--protocol " + std::to_string(o.protocol) + ": the control table " +
-                           table.model() + " (" + table.source() + ") is for protocol " +
-                           std::to_string(table.protocol()));
+    throw common::ConfigError("--protocol " + std::to_string(o.protocol) + ": the control table " +
+                              table.model() + " (" + table.source() + ") is for protocol " +
+                              std::to_string(table.protocol()));
   }
   return table;
 }
@@ -70,8 +69,8 @@ std::vector<uint8_t> Ids(const std::vector<int>& ids, int protocol) {
   const int max_id = protocol == 1 ? 253 : 252;
   for (int id : ids) {
     if (id < 0 || id > max_id) {
-      throw hal::ConfigError("--ids: " + std::to_string(id) + " is not a servo id 0.." +
-                             std::to_string(max_id));
+      throw common::ConfigError("--ids: " + std::to_string(id) + " is not a servo id 0.." +
+                                std::to_string(max_id));
     }
     out.push_back(static_cast<uint8_t>(id));
   }
@@ -119,8 +118,8 @@ std::string StateLine(const hal::DynamixelServo& servo, const hal::DxlServoState
   char text[256];
   std::snprintf(text, sizeof text,
                 "id %d: position %.4f rad (%.2f deg), velocity %.4f rad/s, moving %s, torque %s",
-                servo.id(), st.position, st.position / kDeg, st.velocity, st.moving ? "yes" : "no",
-                st.torque_enabled ? "on" : "off");
+                servo.id(), st.position, st.position / common::kDeg, st.velocity,
+                st.moving ? "yes" : "no", st.torque_enabled ? "on" : "off");
   std::string line = text;
   if (st.load) {
     const hal::DxlRegister* load = servo.table().Find(hal::DxlRole::kPresentLoad);
@@ -175,8 +174,8 @@ int RunRead(const ServoOptions& o) {
     for (const std::string& name : o.registers) {
       const hal::DxlRegister* reg = s.table.Find(name);
       if (reg == nullptr) {
-        throw hal::ConfigError("--register: " + s.table.model() + " has no register \"" + name +
-                               "\"");
+        throw common::ConfigError("--register: " + s.table.model() + " has no register \"" + name +
+                                  "\"");
       }
       hal::DxlReply reply;
       const std::error_code rec = s.bus->Read(servo->id(), reg->address, reg->size, &reply);
@@ -197,9 +196,10 @@ int RunMove(const ServoOptions& o) {
   Session s = Open(o, true);
   for (const auto& servo : s.servos) {
     if (o.position < servo->min_position() || o.position > servo->max_position()) {
-      throw hal::ConfigError("--position " + std::to_string(o.position) + " rad is outside " +
-                             servo->name() + "'s limits [" + std::to_string(servo->min_position()) +
-                             ", " + std::to_string(servo->max_position()) + "] rad");
+      throw common::ConfigError("--position " + std::to_string(o.position) + " rad is outside " +
+                                servo->name() + "'s limits [" +
+                                std::to_string(servo->min_position()) + ", " +
+                                std::to_string(servo->max_position()) + "] rad");
     }
   }
   for (const auto& servo : s.servos) {
@@ -207,8 +207,8 @@ int RunMove(const ServoOptions& o) {
     if (o.velocity >= 0) {
       if (std::error_code ec = servo->SetProfileVelocity(o.velocity)) {
         if (ec == hal::Errc::kInvalidArgument) {
-          throw hal::ConfigError("--velocity " + std::to_string(o.velocity) +
-                                 " rad/s is outside the range of " + servo->name());
+          throw common::ConfigError("--velocity " + std::to_string(o.velocity) +
+                                    " rad/s is outside the range of " + servo->name());
         }
         Fail(*servo, "set the profile velocity", ec);
       }
@@ -263,14 +263,14 @@ int RunTorque(const ServoOptions& o) {
 int RunReboot(const ServoOptions& o) {
   const hal::DxlControlTable table = LoadTable(o);
   if (table.protocol() != 2) {
-    throw hal::ConfigError(
+    throw common::ConfigError(
         "reboot: protocol 1.0 has no reboot instruction; power-cycle the "
         "servo to clear its alarm");
   }
   Session s = Open(o, true);
   for (const auto& servo : s.servos) {
     if (std::error_code ec = servo->Reboot()) Fail(*servo, "reboot", ec);
-    std::printf("id %d: rebooted, %s\n", servo->id(), hal::ToString(servo->lifecycle()));
+    std::printf("id %d: rebooted, %s\n", servo->id(), common::ToString(servo->lifecycle()));
   }
   std::fflush(stdout);
   return kExitOk;

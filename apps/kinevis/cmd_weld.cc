@@ -27,14 +27,13 @@
 #include "apps/kinevis/weld_rig.h"
 #include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/laser_scanner/laser_scanner_dataset.h"
+#include "common/units.h"
 #include "sim/weld_cell_world.h"
 #include "vision/camera/camera_file.h"
 #include "vision/laser/laser_stripes.h"
 
 namespace kinevis::cli {
 namespace {
-
-constexpr double kDeg = M_PI / 180;
 
 struct ScannerRecordOptions {
   std::string config;
@@ -67,7 +66,8 @@ std::vector<robots::Vector5d> BoardPoses(int n) {
   for (int k = 0; k < n; ++k) {
     const double* t = table[k % 8];
     robots::Vector5d v;
-    v << t[0] * kDeg, t[1] * kDeg, t[2] * 1e-3, t[3] * kDeg, t[4] * kDeg;
+    v << t[0] * common::kDeg, t[1] * common::kDeg, t[2] * 1e-3, t[3] * common::kDeg,
+        t[4] * common::kDeg;
     q.push_back(v);
   }
   return q;
@@ -78,8 +78,7 @@ calibration::StripeExtractor MakeStripeExtractor() {
   auto extractor =
       std::make_shared<vision::laser::LaserStripeExtractor>(vision::laser::LaserStripeOptions());
   auto stripes = std::make_shared<vision::laser::LaserStripes>();
-  return [extractor, stripes](const vision::render::ImageView8& image,
-                              std::vector<Eigen::Vector2d>* fixed,
+  return [extractor, stripes](const vision::ImageView8& image, std::vector<Eigen::Vector2d>* fixed,
                               std::vector<Eigen::Vector2d>* rotating) {
     extractor->Extract(image, stripes.get());
     fixed->clear();
@@ -131,7 +130,7 @@ int RecordScannerDataset(WeldRig* rig, const ScannerRecordOptions& o) {
     rig->SetLasers(true, true);
     for (int s = 0; s < o.steps; ++s) {
       const int step = 2 * s - (o.steps - 1);  // symmetric about 0, 2 apart
-      rig->SetLaserAngle(1.0 / std::tan(home + step * o.step_deg * kDeg));
+      rig->SetLaserAngle(1.0 / std::tan(home + step * o.step_deg * common::kDeg));
       grabbed = rig->GrabFresh(&image, nullptr);
       if (!grabbed.empty()) throw std::runtime_error("record scanner: " + grabbed);
       std::snprintf(name, sizeof name, "images/pose%02zu_step%+03d.png", k, step);

@@ -37,6 +37,7 @@
 #include "calibration/weld_mount/mount_calibration.h"
 #include "calibration/weld_mount/mount_calibration_io.h"
 #include "calibration/weld_mount/mount_dataset.h"
+#include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/weld/weld_robot_client.h"
 #include "robots/io/robot_description.h"
@@ -49,8 +50,6 @@ namespace kinevis::cli {
 namespace {
 
 namespace fs = std::filesystem;
-constexpr double kDeg = 180.0 / M_PI;
-constexpr double kMm = 1e3;
 constexpr int kMaxViews = 12;
 // Stripe points below this confidence (laser_stripes.h) are not used; a stripe needs this many
 // points to make a scan.
@@ -97,8 +96,9 @@ PointScanner LoadPointScanner(const std::string& scanner_file, const WeldRig& ri
     std::snprintf(text, sizeof text,
                   "the world config's scanner geometry (no --scanner given): b_y %.4f mm, d_y %.4f "
                   "mm, b_x' %.4f mm, cot theta_x %.5f; camera %s",
-                  kMm * s.geometry.rotating_b_y, kMm * s.geometry.rotating_d_y,
-                  kMm * s.geometry.fixed_b_x_prime, s.geometry.fixed_cot_theta_x,
+                  common::kMmPerM * s.geometry.rotating_b_y,
+                  common::kMmPerM * s.geometry.rotating_d_y,
+                  common::kMmPerM * s.geometry.fixed_b_x_prime, s.geometry.fixed_cot_theta_x,
                   rig.camera_model_spec().c_str());
     s.description = text;
     return s;
@@ -272,7 +272,7 @@ RecordReport RecordMountDataset(WeldRig* rig, const MountRecordOptions& o) {
   std::vector<Eigen::Vector3d> axes;
   for (int yaw = -40; yaw <= 40; yaw += 5) {
     for (int pitch = -60; pitch <= 60; pitch += 10) {
-      const double a = yaw / kDeg, b = pitch / kDeg;
+      const double a = yaw / common::kDegPerRad, b = pitch / common::kDegPerRad;
       axes.emplace_back(std::cos(a) * std::cos(b), std::sin(a) * std::cos(b), -std::sin(b));
     }
   }
@@ -305,7 +305,7 @@ RecordReport RecordMountDataset(WeldRig* rig, const MountRecordOptions& o) {
         continue;
       }
       robots::Vector5d q;
-      if (!rig->OperatorTouch(p_0, axis, o.touch_sigma_mm / kMm, &q)) continue;
+      if (!rig->OperatorTouch(p_0, axis, o.touch_sigma_mm / common::kMmPerM, &q)) continue;
       // The operator has jogged the torch there; the controller reports the joints.
       Moved(rig, rig->MoveTo(q, 0.5), std::string("touch ") + t.feature);
       calibration::MountTouch touch;
@@ -364,8 +364,7 @@ RecordReport RecordMountDataset(WeldRig* rig, const MountRecordOptions& o) {
       robots::Vector5d q_read;
       const std::string grabbed = rig->GrabFresh(&image, &q_read);
       if (!grabbed.empty()) throw hal::HalError("scanner camera", "grab", grabbed);
-      const vision::render::ImageView8 view{image.data.data(), image.width, image.height,
-                                            image.stride};
+      const vision::ImageView8 view{image.data.data(), image.width, image.height, image.stride};
       extractor.Extract(view, &stripes);
       char where[80];
       std::snprintf(where, sizeof where, "view %d, commanded cot theta_y %.2f", v, commanded);
@@ -489,29 +488,35 @@ void PrintSummary(const calibration::MountCalibrationSummary& s,
     sr(i) = std::sqrt(C(i, i));
     sp(i) = std::sqrt(C(3 + i, 3 + i));
   }
-  std::printf("  mount X_5C: position %s mm +- %s mm\n", Vec(s.X_5C.translation(), kMm).c_str(),
-              Vec(sp, kMm, "%.4f").c_str());
+  std::printf("  mount X_5C: position %s mm +- %s mm\n",
+              Vec(s.X_5C.translation(), common::kMmPerM).c_str(),
+              Vec(sp, common::kMmPerM, "%.4f").c_str());
   std::printf("              rpy %s deg +- %s deg (about the camera axes)\n",
-              Vec(Rpy(s.X_5C.linear()), kDeg, "%.4f").c_str(), Vec(sr, kDeg, "%.4f").c_str());
+              Vec(Rpy(s.X_5C.linear()), common::kDegPerRad, "%.4f").c_str(),
+              Vec(sr, common::kDegPerRad, "%.4f").c_str());
   std::printf("              1-sigma (largest direction): %.4f mm, %.4f deg\n",
-              kMm * s.mount_position_std, kDeg * s.mount_angle_std);
+              common::kMmPerM * s.mount_position_std, common::kDegPerRad * s.mount_angle_std);
   const Eigen::Vector3d dp = s.X_5C.translation() - data.X_5C_guess.translation();
   const Eigen::AngleAxisd dR(data.X_5C_guess.linear().transpose() * s.X_5C.linear());
   std::printf("  correction from the CAD mount: %s mm (%.3f mm), rotation %s deg (%.3f deg)\n",
-              Vec(dp, kMm).c_str(), kMm * dp.norm(),
-              Vec(Eigen::Vector3d(dR.angle() * dR.axis()), kDeg).c_str(), kDeg * dR.angle());
+              Vec(dp, common::kMmPerM).c_str(), common::kMmPerM * dp.norm(),
+              Vec(Eigen::Vector3d(dR.angle() * dR.axis()), common::kDegPerRad).c_str(),
+              common::kDegPerRad * dR.angle());
   std::printf(
       "  block X_0B: position %s mm, rpy %s deg (%.2f mm, %.2f deg from the guess)\n",
-      Vec(s.X_0B.translation(), kMm, "%.2f").c_str(),
-      Vec(Rpy(s.X_0B.linear()), kDeg, "%.2f").c_str(),
-      kMm * (s.X_0B.translation() - data.X_0B_guess.translation()).norm(),
-      kDeg * Eigen::AngleAxisd(data.X_0B_guess.linear().transpose() * s.X_0B.linear()).angle());
+      Vec(s.X_0B.translation(), common::kMmPerM, "%.2f").c_str(),
+      Vec(Rpy(s.X_0B.linear()), common::kDegPerRad, "%.2f").c_str(),
+      common::kMmPerM * (s.X_0B.translation() - data.X_0B_guess.translation()).norm(),
+      common::kDegPerRad *
+          Eigen::AngleAxisd(data.X_0B_guess.linear().transpose() * s.X_0B.linear()).angle());
   std::printf(
       "  residuals: touches %d, rms %.4f mm, median %.4f mm, max %.4f mm, %d beyond k sigma\n",
-      s.touch.count, kMm * s.touch.rms, kMm * s.touch.median, kMm * s.touch.max, s.touch.beyond_k);
+      s.touch.count, common::kMmPerM * s.touch.rms, common::kMmPerM * s.touch.median,
+      common::kMmPerM * s.touch.max, s.touch.beyond_k);
   std::printf(
       "             scan points %d, rms %.4f mm, median %.4f mm, max %.4f mm, %d beyond k sigma\n",
-      s.scan.count, kMm * s.scan.rms, kMm * s.scan.median, kMm * s.scan.max, s.scan.beyond_k);
+      s.scan.count, common::kMmPerM * s.scan.rms, common::kMmPerM * s.scan.median,
+      common::kMmPerM * s.scan.max, s.scan.beyond_k);
   std::printf("  identifiability: rank %d of %zu parameters, condition number %.4g\n", s.rank,
               s.parameter_names.size(), s.condition_number);
   for (const std::string& u : s.unidentified) std::printf("    unidentified: %s\n", u.c_str());
@@ -522,7 +527,7 @@ void PrintSummary(const calibration::MountCalibrationSummary& s,
       if (!s.estimated[i]) continue;
       const std::string& n = s.parameter_names[i];
       const bool angle = n.rfind("alpha", 0) == 0 || n.rfind("theta", 0) == 0;
-      const double k = angle ? kDeg : kMm;
+      const double k = angle ? common::kDegPerRad : common::kMmPerM;
       std::printf("%s %s %+.4f +- %.4f %s", shown++ % 4 == 0 ? "\n   " : ",", n.c_str(),
                   k * s.correction(static_cast<long>(i)), k * s.std_dev(static_cast<long>(i)),
                   angle ? "deg" : "mm");
@@ -573,8 +578,8 @@ int RunCalibrateScannerMount(const MountCalibrateOptions& o) {
       calibration::MountCalibrationDataFromDataset(used, robot);
   calibration::MountCalibrationOptions options;
   options.estimate_dh = o.dh;
-  options.touch_sigma = o.touch_sigma_mm / kMm;
-  options.scan_sigma = o.scan_sigma_mm / kMm;
+  options.touch_sigma = o.touch_sigma_mm / common::kMmPerM;
+  options.scan_sigma = o.scan_sigma_mm / common::kMmPerM;
   if (data.touches.empty() || data.scans.empty()) {
     std::printf("scanner mount calibration from %s: %zu touches, %zu scans: nothing to calibrate\n",
                 dataset_dir.c_str(), data.touches.size(), data.scans.size());
@@ -609,9 +614,11 @@ int RunCalibrateScannerMount(const MountCalibrateOptions& o) {
     std::printf(
         "  simulation truth: mount error %.4f mm %s, %.4f deg (the CAD mount was %.3f mm, %.3f "
         "deg off); block error %.4f mm, %.4f deg\n",
-        kMm * e.norm(), Vec(e, kMm, "%+.4f").c_str(), kDeg * angle, kMm * cad_error,
-        kDeg * cad_angle, kMm * (s.X_0B.translation() - X_0B.translation()).norm(),
-        kDeg * Eigen::AngleAxisd(X_0B.linear().transpose() * s.X_0B.linear()).angle());
+        common::kMmPerM * e.norm(), Vec(e, common::kMmPerM, "%+.4f").c_str(),
+        common::kDegPerRad * angle, common::kMmPerM * cad_error, common::kDegPerRad * cad_angle,
+        common::kMmPerM * (s.X_0B.translation() - X_0B.translation()).norm(),
+        common::kDegPerRad *
+            Eigen::AngleAxisd(X_0B.linear().transpose() * s.X_0B.linear()).angle());
     if (o.dh) {
       std::printf(
           "    (with --dh the block's pose takes up the D-H errors held at nominal, d1 and theta1 "

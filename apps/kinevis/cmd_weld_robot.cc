@@ -17,6 +17,7 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
+#include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/mock/weld_robot_sim.h"
 #include "hal/weld/weld_robot_client.h"
@@ -27,8 +28,6 @@ namespace kinevis::cli {
 namespace {
 
 namespace wr = hal::weld_robot;
-
-constexpr double kDeg = M_PI / 180.0;
 
 struct WeldRobotOptions {
   std::string backend;
@@ -50,7 +49,8 @@ struct WeldRobotOptions {
 std::string JointsText(const hal::WeldJoints& q) {
   char text[160];
   std::snprintf(text, sizeof text, "θ1 %.3f°, θ2 %.3f°, pz3 %.3f mm, θ4 %.3f°, θ5 %.3f°",
-                q[0] / kDeg, q[1] / kDeg, q[2] * 1e3, q[3] / kDeg, q[4] / kDeg);
+                q[0] / common::kDeg, q[1] / common::kDeg, q[2] * 1e3, q[3] / common::kDeg,
+                q[4] / common::kDeg);
   return text;
 }
 
@@ -58,7 +58,7 @@ std::string JointsText(const hal::WeldJoints& q) {
 // robot's limits) are usage errors, everything else is the device failing.
 [[noreturn]] void Throw(const hal::WeldRobotClient& client, const char* operation,
                         std::error_code ec) {
-  if (ec == hal::Errc::kInvalidArgument) throw hal::ConfigError(client.last_error_text());
+  if (ec == hal::Errc::kInvalidArgument) throw common::ConfigError(client.last_error_text());
   throw hal::HalError(client.name(), operation,
                       client.last_error_text().empty() ? ec.message() : client.last_error_text(),
                       ec);
@@ -138,14 +138,14 @@ int Stream(hal::WeldRobotClient& client, const std::vector<hal::WeldTrajectoryPo
 
 int RunMove(const WeldRobotOptions& o) {
   if (o.joints.size() != wr::kJointCount) {
-    throw hal::ConfigError(
+    throw common::ConfigError(
         "--joints: need 5 values θ1,θ2,pz3,θ4,θ5 (deg, deg, mm, deg, deg), got " +
         std::to_string(o.joints.size()));
   }
   hal::WeldTrajectoryPoint p;
   for (int j = 0; j < wr::kJointCount; ++j) {
     const double v = o.joints[static_cast<size_t>(j)];
-    p.joints[static_cast<size_t>(j)] = wr::IsPrismatic(j) ? v * 1e-3 : v * kDeg;
+    p.joints[static_cast<size_t>(j)] = wr::IsPrismatic(j) ? v * 1e-3 : v * common::kDeg;
   }
   p.duration = o.duration_s;
   p.arc_on = o.arc;
@@ -156,13 +156,15 @@ int RunMove(const WeldRobotOptions& o) {
 // The trajectory CSV of docs/weld-robot-modbus.md.
 std::vector<hal::WeldTrajectoryPoint> ReadTrajectoryCsv(const std::string& path) {
   std::ifstream in(path);
-  if (!in) throw hal::ConfigError("trajectory \"" + path + "\": cannot be read");
+  if (!in) throw common::ConfigError("trajectory \"" + path + "\": cannot be read");
   // Column name -> (joint index or -1 duration or -2 arc, scale to SI).
   const std::map<std::string, std::pair<int, double>> known = {
-      {"duration_s", {-1, 1.0}}, {"duration_ms", {-1, 1e-3}}, {"arc", {-2, 1.0}},
-      {"theta1_deg", {0, kDeg}}, {"theta1_rad", {0, 1.0}},    {"theta2_deg", {1, kDeg}},
-      {"theta2_rad", {1, 1.0}},  {"pz3_mm", {2, 1e-3}},       {"pz3_m", {2, 1.0}},
-      {"theta4_deg", {3, kDeg}}, {"theta4_rad", {3, 1.0}},    {"theta5_deg", {4, kDeg}},
+      {"duration_s", {-1, 1.0}}, {"duration_ms", {-1, 1e-3}},
+      {"arc", {-2, 1.0}},        {"theta1_deg", {0, common::kDeg}},
+      {"theta1_rad", {0, 1.0}},  {"theta2_deg", {1, common::kDeg}},
+      {"theta2_rad", {1, 1.0}},  {"pz3_mm", {2, 1e-3}},
+      {"pz3_m", {2, 1.0}},       {"theta4_deg", {3, common::kDeg}},
+      {"theta4_rad", {3, 1.0}},  {"theta5_deg", {4, common::kDeg}},
       {"theta5_rad", {4, 1.0}}};
   std::vector<std::pair<int, double>> columns;
   std::vector<hal::WeldTrajectoryPoint> points;
@@ -190,17 +192,18 @@ std::vector<hal::WeldTrajectoryPoint> ReadTrajectoryCsv(const std::string& path)
       for (const std::string& name : fields) {
         auto it = known.find(name);
         if (it == known.end()) {
-          throw hal::ConfigError(where() + ": unknown column \"" + name +
-                                 "\" (see docs/weld-robot-modbus.md)");
+          throw common::ConfigError(where() + ": unknown column \"" + name +
+                                    "\" (see docs/weld-robot-modbus.md)");
         }
         const int slot =
             it->second.first >= 0 ? it->second.first : wr::kJointCount - it->second.first - 1;
-        if (seen[slot]++ > 0) throw hal::ConfigError(where() + ": column \"" + name + "\" twice");
+        if (seen[slot]++ > 0)
+          throw common::ConfigError(where() + ": column \"" + name + "\" twice");
         columns.push_back(it->second);
       }
       for (int slot = 0; slot < wr::kJointCount + 2; ++slot) {
         if (seen[slot] == 0) {
-          throw hal::ConfigError(
+          throw common::ConfigError(
               where() +
               ": the header needs a duration, arc, and the five joint columns "
               "(duration_s,theta1_deg,theta2_deg,pz3_mm,theta4_deg,theta5_deg,arc)");
@@ -209,8 +212,8 @@ std::vector<hal::WeldTrajectoryPoint> ReadTrajectoryCsv(const std::string& path)
       continue;
     }
     if (fields.size() != columns.size()) {
-      throw hal::ConfigError(where() + ": " + std::to_string(fields.size()) +
-                             " fields, the header has " + std::to_string(columns.size()));
+      throw common::ConfigError(where() + ": " + std::to_string(fields.size()) +
+                                " fields, the header has " + std::to_string(columns.size()));
     }
     hal::WeldTrajectoryPoint p;
     for (size_t c = 0; c < columns.size(); ++c) {
@@ -222,15 +225,15 @@ std::vector<hal::WeldTrajectoryPoint> ReadTrajectoryCsv(const std::string& path)
         used = 0;
       }
       if (used != fields[c].size() || fields[c].empty() || !std::isfinite(value)) {
-        throw hal::ConfigError(where() + ": field " + std::to_string(c + 1) + " \"" + fields[c] +
-                               "\" is not a number");
+        throw common::ConfigError(where() + ": field " + std::to_string(c + 1) + " \"" + fields[c] +
+                                  "\" is not a number");
       }
       const auto [slot, scale] = columns[c];
       if (slot == -1) {
         p.duration = value * scale;
       } else if (slot == -2) {
         if (value != 0 && value != 1) {
-          throw hal::ConfigError(where() + ": arc \"" + fields[c] + "\" is not 0 or 1");
+          throw common::ConfigError(where() + ": arc \"" + fields[c] + "\" is not 0 or 1");
         }
         p.arc_on = value == 1;
       } else {
@@ -239,7 +242,7 @@ std::vector<hal::WeldTrajectoryPoint> ReadTrajectoryCsv(const std::string& path)
     }
     points.push_back(p);
   }
-  if (points.empty()) throw hal::ConfigError("trajectory \"" + path + "\": no points");
+  if (points.empty()) throw common::ConfigError("trajectory \"" + path + "\": no points");
   return points;
 }
 
@@ -315,7 +318,7 @@ int RunSim(const SimOptions& o) {
   if (o.rtu) {
     sim = hal::WeldRobotSim::ServeRtu(options, o.link);
   } else {
-    if (!o.link.empty()) throw hal::ConfigError("--link: only with --rtu");
+    if (!o.link.empty()) throw common::ConfigError("--link: only with --rtu");
     const size_t colon = o.listen.rfind(':');
     std::string host = colon == std::string::npos ? "" : o.listen.substr(0, colon);
     const std::string port_text = colon == std::string::npos ? "" : o.listen.substr(colon + 1);
@@ -330,8 +333,8 @@ int RunSim(const SimOptions& o) {
       used = 0;
     }
     if (host.empty() || used == 0 || used != port_text.size() || port < 0 || port > 65535) {
-      throw hal::ConfigError("--listen \"" + o.listen +
-                             "\": need HOST:PORT with PORT in 0..65535 (0: any free port)");
+      throw common::ConfigError("--listen \"" + o.listen +
+                                "\": need HOST:PORT with PORT in 0..65535 (0: any free port)");
     }
     sim = hal::WeldRobotSim::ListenTcp(host, port, options);
   }

@@ -37,6 +37,7 @@
 #include "calibration/weld_mount/mount_calibration_io.h"
 #include "calibration/weld_mount/scan_cloud.h"
 #include "calibration/weld_mount/scan_dataset.h"
+#include "common/units.h"
 #include "control/weld/weld_plan_io.h"
 #include "control/weld/weld_planner.h"
 #include "hal/weld/weld_robot_client.h"
@@ -50,7 +51,6 @@ namespace kinevis::cli {
 namespace {
 
 namespace fs = std::filesystem;
-constexpr double kDeg = M_PI / 180;
 
 // "θ1,θ2,pz3,θ4,θ5" in deg, deg, mm, deg, deg.
 robots::Vector5d ParseJoints(const std::string& text, const char* option) {
@@ -72,7 +72,8 @@ robots::Vector5d ParseJoints(const std::string& text, const char* option) {
                                 std::to_string(v.size()));
   }
   robots::Vector5d q;
-  q << v[0] * kDeg, v[1] * kDeg, v[2] * 1e-3, v[3] * kDeg, v[4] * kDeg;
+  q << v[0] * common::kDeg, v[1] * common::kDeg, v[2] * 1e-3, v[3] * common::kDeg,
+      v[4] * common::kDeg;
   return q;
 }
 
@@ -119,9 +120,8 @@ vision::laser::ScannerGeometry LoadScanner(const std::string& path, std::string*
   return file.result.geometry;
 }
 
-void AddLine(vision::laser::ScanLineTriangulator* triangulator,
-             const vision::render::ImageView8& view, const robots::Vector5d& q, double commanded,
-             ScanFrames* out) {
+void AddLine(vision::laser::ScanLineTriangulator* triangulator, const vision::ImageView8& view,
+             const robots::Vector5d& q, double commanded, ScanFrames* out) {
   vision::laser::ScanLineResult r;
   triangulator->Process(view, &r, commanded);
   ++out->frames;
@@ -179,8 +179,7 @@ ScanFrames SweepOnRig(WeldRig* rig, const vision::laser::ScannerModel& model, co
     const std::string grabbed = rig->GrabFresh(&image, &q);
     if (!grabbed.empty())
       throw std::runtime_error("scan: frame " + std::to_string(k) + ": " + grabbed);
-    const vision::render::ImageView8 view{image.data.data(), image.width, image.height,
-                                          image.stride};
+    const vision::ImageView8 view{image.data.data(), image.width, image.height, image.stride};
     if (!record.empty()) {
       calibration::ScanDatasetFrame f;
       f.q = q;
@@ -202,7 +201,7 @@ ScanFrames SweepFromDataset(const calibration::ScanDataset& d,
   const int w = model.camera().width(), h = model.camera().height();
   for (const calibration::ScanDatasetFrame& f : d.frames) {
     std::vector<uint8_t> pixels = calibration::ReadScanFrameImage(d, f, w, h);
-    const vision::render::ImageView8 view{pixels.data(), w, h, static_cast<size_t>(w)};
+    const vision::ImageView8 view{pixels.data(), w, h, static_cast<size_t>(w)};
     AddLine(&triangulator, view, f.q, f.commanded_cot_theta_y, &out);
   }
   return out;
@@ -393,7 +392,8 @@ int RunWeldPath(const WeldPathOptions& o) {
   std::printf(
       "  torch tilt max %.2f deg, mean %.2f deg; %d unreachable points; max joint speed "
       "%.0f %% of the limit\n",
-      s.max_tilt / kDeg, s.mean_tilt / kDeg, s.unreachable_points, 100.0 * s.max_joint_speed_ratio);
+      s.max_tilt / common::kDeg, s.mean_tilt / common::kDeg, s.unreachable_points,
+      100.0 * s.max_joint_speed_ratio);
   for (const control::WeldRegionPlan& r : plan.regions) {
     std::printf(
         "  region %d: %.1f mm^2, max depth %.2f mm, %zu layers%s\n", r.region.id,
@@ -577,7 +577,7 @@ int RunWeldRun(const WeldRunOptions& o) {
       log << "trajectory_index,path_mm,stand_off_mm,error_mm,axis_error_deg\n";
       for (const control::StandOffSample& s : c.samples) {
         log << s.trajectory_index << "," << 1e3 * s.path_position << "," << 1e3 * s.stand_off << ","
-            << 1e3 * s.error << "," << s.axis_error / kDeg << "\n";
+            << 1e3 * s.error << "," << s.axis_error / common::kDeg << "\n";
       }
       if (!log) throw std::runtime_error("cannot write " + o.log);
       std::printf("wrote %s\n", o.log.c_str());

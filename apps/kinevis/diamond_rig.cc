@@ -8,6 +8,7 @@
 #include <thread>
 
 #include "apps/kinevis/cli_common.h"
+#include "common/clock.h"
 #include "control/diamond/diamond_drives.h"
 #include "control/diamond/diamond_laws.h"
 #include "hal/camera/camera_factory.h"
@@ -22,10 +23,6 @@ namespace kinevis::cli {
 namespace {
 
 using namespace std::chrono_literals;
-
-hal::Duration FromSeconds(double s) {
-  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
-}
 
 bool IsWorldConfig(const std::string& path) {
   sim::internal::WorldConfigReader r(path, "diamond");
@@ -171,7 +168,7 @@ DiamondRig::DiamondRig(const DiamondRigOptions& options) : config_path_(options.
     const std::string bad = drives.Validate();
     if (!bad.empty()) r.Problem("drives: " + bad);
     r.ThrowIfProblems();
-    clock_ = &hal::SteadyClock::Instance();
+    clock_ = &common::SteadyClock::Instance();
   }
 
   camera_model_ = vision::OpenCameraModel(camera_model_spec_);
@@ -243,11 +240,11 @@ control::DiamondLoopReport DiamondRig::MoveTo(const Eigen::Vector2d& task, doubl
 }
 
 std::string DiamondRig::GrabFresh(hal::Image* image) {
-  const hal::Duration wanted = clock_->Now();
-  const hal::Duration deadline = wanted + FromSeconds(3.0 / camera_fps_ + 0.5);
+  const common::Duration wanted = clock_->Now();
+  const common::Duration deadline = wanted + common::FromSeconds(3.0 / camera_fps_ + 0.5);
   // Frame k is captured at start + k/fps: cycle the drives until the next capture has passed,
   // then the grab returns at once (a real camera: the frame is already there).
-  bus_->RunCyclesUntil(wanted + FromSeconds(1.0 / camera_fps_), [] { return false; });
+  bus_->RunCyclesUntil(wanted + common::FromSeconds(1.0 / camera_fps_), [] { return false; });
   for (;;) {
     if (const std::error_code ec = camera_->Grab(image, 2000ms)) {
       return "camera " + camera_name_ + ": " + ec.message();
@@ -260,12 +257,13 @@ std::string DiamondRig::GrabFresh(hal::Image* image) {
       return "";
     }
     if (clock_->Now() > deadline) return "camera " + camera_name_ + ": no fresh frame";
-    bus_->RunCyclesUntil(clock_->Now() + FromSeconds(0.5 / camera_fps_), [] { return false; });
+    bus_->RunCyclesUntil(clock_->Now() + common::FromSeconds(0.5 / camera_fps_),
+                         [] { return false; });
   }
 }
 
 void DiamondRig::Hold(double seconds) {
-  bus_->RunCyclesUntil(clock_->Now() + FromSeconds(seconds), [] { return false; });
+  bus_->RunCyclesUntil(clock_->Now() + common::FromSeconds(seconds), [] { return false; });
 }
 
 void DiamondRig::Disable() {

@@ -21,8 +21,10 @@
 #include "robots/diamond/diamond_model.h"
 #include "vision/diamond/marker_detector.h"
 
-namespace kinevis::hal {
+namespace kinevis::common {
 class Clock;
+}  // namespace kinevis::common
+namespace kinevis::hal {
 class Rs485DriveBus;
 }  // namespace kinevis::hal
 namespace kinevis::sim {
@@ -57,7 +59,7 @@ class DiamondRig {
  public:
   // Reads the file, builds the world (simulated) or opens the RS485 line, adds the two drives and
   // starts the camera; does not enable the drives. Throws std::invalid_argument (bad file: names
-  // it and every bad key), hal::ConfigError or hal::HalError (a device that cannot be opened).
+  // it and every bad key), common::ConfigError or hal::HalError (a device that cannot be opened).
   explicit DiamondRig(const DiamondRigOptions& options);
   ~DiamondRig();  // disables the drives (the safe state), stops the world
   DiamondRig(const DiamondRig&) = delete;
@@ -71,7 +73,7 @@ class DiamondRig {
   // Where the nominal model came from ("" for the built-in a-priori set).
   const std::string& robot_description() const { return robot_description_; }
   const robots::DiamondModel& nominal() const { return nominal_; }
-  hal::Clock& clock() const { return *clock_; }
+  common::Clock& clock() const { return *clock_; }
   hal::Rs485DriveBus& bus() const { return *bus_; }
   double cycle_period_s() const { return cycle_period_s_; }
 
@@ -114,7 +116,7 @@ class DiamondRig {
   std::string robot_description_;
   robots::DiamondModel nominal_ = robots::DiamondModel::APriori();
   std::unique_ptr<sim::DiamondWorld> world_;
-  hal::Clock* clock_ = nullptr;
+  common::Clock* clock_ = nullptr;
   std::unique_ptr<hal::Rs485DriveBus> bus_;
   double cycle_period_s_ = 0.001;
   std::string camera_name_;

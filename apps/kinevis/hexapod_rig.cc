@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "apps/kinevis/cli_common.h"
+#include "common/clock.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/can/can_bus_factory.h"
 #include "hal/canopen/canopen_master.h"
@@ -21,11 +22,6 @@ namespace kinevis::cli {
 namespace {
 
 using namespace std::chrono_literals;
-
-double Seconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
-hal::Duration FromSeconds(double s) {
-  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
-}
 
 // Is the file a world config (`world:` key) rather than a deployment file (`rig:`)?
 bool IsWorldConfig(const std::string& path) {
@@ -154,7 +150,7 @@ HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.
                 {"name", "source", "model", "pose", "fps", "edge_locator", "edge_blur_px"});
     r.CheckKeys("", {"rig", "robot", "drives", "camera"});
     r.ThrowIfProblems();
-    clock_ = &hal::SteadyClock::Instance();
+    clock_ = &common::SteadyClock::Instance();
   }
 
   camera_model_ = vision::OpenCameraModel(camera_model_spec_);
@@ -196,7 +192,7 @@ void HexapodRig::Enable() {
   master_->ConfigureAll();
   if (const std::error_code ec = master_->EnableAll(2000ms)) {
     for (hal::Cia402CanDrive* d : drives_) {
-      if (d->lifecycle() != hal::DeviceLifecycle::kActive) {
+      if (d->lifecycle() != common::DeviceLifecycle::kActive) {
         throw hal::HalError(d->name(), "enable", ec.message(), ec);
       }
     }
@@ -215,17 +211,17 @@ std::string HexapodRig::MoveTo(const robots::Vector6d& s_target, double speed, d
   // A cosine ramp peaks at π/2 times its mean speed.
   const double distance = (s_target - s_start).cwiseAbs().maxCoeff();
   const double duration = std::max(0.05, M_PI / 2 * distance / speed);
-  const hal::Duration start = clock_->Now();
+  const common::Duration start = clock_->Now();
   std::string fault;
-  master_->RunCyclesUntil(start + FromSeconds(duration + settle_s), [&] {
+  master_->RunCyclesUntil(start + common::FromSeconds(duration + settle_s), [&] {
     for (hal::Cia402CanDrive* d : drives_) {
       const hal::DriveStatus st = d->status();
-      if (d->lifecycle() == hal::DeviceLifecycle::kFault) {
+      if (d->lifecycle() == common::DeviceLifecycle::kFault) {
         fault = d->name() + " faulted (error code 0x" + fmt::format("{:04X}", st.error_code) + ")";
         return true;
       }
     }
-    const double t = std::min(1.0, Seconds(clock_->Now() - start) / duration);
+    const double t = std::min(1.0, common::ToSeconds(clock_->Now() - start) / duration);
     const double a = 0.5 * (1 - std::cos(M_PI * t));
     for (int j = 0; j < robots::kHexapodLegs; ++j) {
       if (const std::error_code ec =
@@ -240,23 +236,24 @@ std::string HexapodRig::MoveTo(const robots::Vector6d& s_target, double speed, d
 }
 
 std::string HexapodRig::GrabFresh(hal::Image* image) {
-  const hal::Duration wanted = clock_->Now();
-  const hal::Duration deadline = wanted + FromSeconds(3.0 / camera_fps_ + 0.5);
+  const common::Duration wanted = clock_->Now();
+  const common::Duration deadline = wanted + common::FromSeconds(3.0 / camera_fps_ + 0.5);
   // The camera captures frame k at start + k/fps: cycle the drives until the next capture time
   // has passed, then the grab returns at once (a real camera: the frame is already there).
-  master_->RunCyclesUntil(wanted + FromSeconds(1.0 / camera_fps_), [] { return false; });
+  master_->RunCyclesUntil(wanted + common::FromSeconds(1.0 / camera_fps_), [] { return false; });
   for (;;) {
     if (const std::error_code ec = camera_->Grab(image, 2000ms)) {
       return "camera " + camera_name_ + ": " + ec.message();
     }
     if (image->timestamp >= wanted) return "";
     if (clock_->Now() > deadline) return "camera " + camera_name_ + ": no fresh frame";
-    master_->RunCyclesUntil(clock_->Now() + FromSeconds(0.5 / camera_fps_), [] { return false; });
+    master_->RunCyclesUntil(clock_->Now() + common::FromSeconds(0.5 / camera_fps_),
+                            [] { return false; });
   }
 }
 
 void HexapodRig::Hold(double seconds) {
-  master_->RunCyclesUntil(clock_->Now() + FromSeconds(seconds), [] { return false; });
+  master_->RunCyclesUntil(clock_->Now() + common::FromSeconds(seconds), [] { return false; });
 }
 
 void HexapodRig::Disable() {

@@ -18,8 +18,10 @@
 #include "robots/hexapod/hexapod_model.h"
 #include "vision/hexapod/leg_edges.h"
 
-namespace kinevis::hal {
+namespace kinevis::common {
 class Clock;
+}  // namespace kinevis::common
+namespace kinevis::hal {
 class Cia402CanDrive;
 namespace canopen {
 class CanopenMaster;
@@ -43,7 +45,7 @@ class HexapodRig {
  public:
   // Reads the file, builds (or connects to) the drives and opens the camera; does not enable
   // the drives. Throws std::invalid_argument (bad file: names it and every bad key),
-  // hal::ConfigError or hal::HalError (a device that cannot be opened).
+  // common::ConfigError or hal::HalError (a device that cannot be opened).
   explicit HexapodRig(const HexapodRigOptions& options);
   ~HexapodRig();  // disables the drives (the safe state), stops the world
   HexapodRig(const HexapodRig&) = delete;
@@ -55,7 +57,7 @@ class HexapodRig {
   // Where the nominal model came from ("" for the built-in default).
   const std::string& robot_description() const { return robot_description_; }
   const robots::HexapodModel& nominal() const { return nominal_; }
-  hal::Clock& clock() const { return *clock_; }
+  common::Clock& clock() const { return *clock_; }
   hal::canopen::CanopenMaster& master() const { return *master_; }
   const std::vector<hal::Cia402CanDrive*>& drives() const { return drives_; }
 
@@ -99,7 +101,7 @@ class HexapodRig {
   std::string robot_description_;
   robots::HexapodModel nominal_;
   std::unique_ptr<sim::HexapodWorld> world_;
-  hal::Clock* clock_ = nullptr;
+  common::Clock* clock_ = nullptr;
   std::unique_ptr<hal::canopen::CanopenMaster> master_;
   std::vector<hal::Cia402CanDrive*> drives_;
   std::string camera_name_;

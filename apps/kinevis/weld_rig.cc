@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "apps/kinevis/cli_common.h"
+#include "common/clock.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/common/error.h"
 #include "hal/weld/weld_robot_client.h"
@@ -20,10 +21,6 @@ namespace kinevis::cli {
 namespace {
 
 using namespace std::chrono_literals;
-
-hal::Duration FromSeconds(double s) {
-  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
-}
 
 bool IsWorldConfig(const std::string& path) {
   sim::internal::WorldConfigReader r(path, "weld-cell");
@@ -104,7 +101,7 @@ WeldRig::WeldRig(const WeldRigOptions& options) : config_path_(options.config) {
     r.CheckKeys("scanner", {"source", "camera", "nominal_mount", "fps"});
     r.CheckKeys("", {"rig", "robot", "welder", "scanner"});
     r.ThrowIfProblems();
-    clock_ = &hal::SteadyClock::Instance();
+    clock_ = &common::SteadyClock::Instance();
   }
 
   camera_model_ = vision::OpenCameraModel(camera_model_spec_);
@@ -169,20 +166,20 @@ std::string WeldRig::MoveTo(const robots::Vector5d& q, double speed_fraction, do
   if (robot_->StreamTrajectory(points, {}, nullptr, hal::WeldStreamOptions(), &report)) {
     return "move: " + robot_->last_error_text();
   }
-  clock_->SleepFor(FromSeconds(settle_s));
+  clock_->SleepFor(common::FromSeconds(settle_s));
   return "";
 }
 
 std::string WeldRig::GrabFresh(hal::Image* image, robots::Vector5d* q) {
-  const hal::Duration wanted = clock_->Now();
-  const hal::Duration deadline = wanted + FromSeconds(3.0 / camera_fps_ + 0.5);
+  const common::Duration wanted = clock_->Now();
+  const common::Duration deadline = wanted + common::FromSeconds(3.0 / camera_fps_ + 0.5);
   for (;;) {
     if (const std::error_code ec = camera_->Grab(image, 2000ms)) {
       return "scanner camera: " + ec.message();
     }
     if (image->timestamp >= wanted) break;
     if (clock_->Now() > deadline) return "scanner camera: no fresh frame";
-    clock_->SleepFor(FromSeconds(0.25 / camera_fps_));
+    clock_->SleepFor(common::FromSeconds(0.25 / camera_fps_));
   }
   if (q != nullptr) {
     try {

@@ -21,8 +21,10 @@
 #include "hal/camera/camera.h"
 #include "robots/weld5/weld5_model.h"
 
-namespace kinevis::hal {
+namespace kinevis::common {
 class Clock;
+}  // namespace kinevis::common
+namespace kinevis::hal {
 class WeldRobotClient;
 }  // namespace kinevis::hal
 namespace kinevis::sim {
@@ -47,8 +49,8 @@ class WeldRig {
  public:
   // Reads the file, builds the world (simulated) or connects to the robot, configures and
   // activates the robot client and starts the scanner camera. Throws std::invalid_argument (bad
-  // file: names it and every bad key), hal::ConfigError or hal::HalError (a device that cannot be
-  // opened, configured or activated: names it).
+  // file: names it and every bad key), common::ConfigError or hal::HalError (a device that cannot
+  // be opened, configured or activated: names it).
   explicit WeldRig(const WeldRigOptions& options);
   ~WeldRig();  // stops the robot (the safe state: motion stopped, arc off), stops the world
   WeldRig(const WeldRig&) = delete;
@@ -62,7 +64,7 @@ class WeldRig {
   const robots::Weld5Model& nominal() const { return nominal_; }
   // The nominal (CAD) scanner mount X_5C: the start of mount calibration.
   const Eigen::Isometry3d& X_5C_nominal() const { return X_5C_nominal_; }
-  hal::Clock& clock() const { return *clock_; }
+  common::Clock& clock() const { return *clock_; }
   hal::WeldRobotClient& robot() const { return *robot_; }
 
   const std::string& camera_model_spec() const { return camera_model_spec_; }
@@ -99,7 +101,7 @@ class WeldRig {
   robots::Weld5Model nominal_;
   Eigen::Isometry3d X_5C_nominal_ = Eigen::Isometry3d::Identity();
   std::unique_ptr<sim::WeldCellWorld> world_;
-  hal::Clock* clock_ = nullptr;
+  common::Clock* clock_ = nullptr;
   std::unique_ptr<hal::WeldRobotClient> robot_;
   std::string camera_model_spec_;
   std::unique_ptr<vision::CameraModel> camera_model_;

@@ -10,13 +10,14 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/units.h"
+
 namespace kinevis::calibration {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr int kCoverageCols = 16;
 constexpr int kCoverageRows = 12;
-constexpr double kFrontoParallelTiltRad = 15.0 * kPi / 180.0;
+constexpr double kFrontoParallelTiltRad = 15.0 * common::kPi / 180.0;
 constexpr double kPoorCoverage = 0.5;
 constexpr int kRecommendedMinImages = 3;
 constexpr double kMaxRelativeFocalStd = 0.01;   // of the focal length
@@ -230,7 +231,7 @@ ChessboardCalibrationResult Calibrate(std::vector<ImageReport> reports, int widt
     w.push_back(
         Format("all boards nearly fronto-parallel (largest tilt %.1f deg < 15 deg): the "
                "focal length is poorly determined; tilt the board 20-45 deg",
-               result.max_tilt_rad * 180.0 / kPi));
+               result.max_tilt_rad * 180.0 / common::kPi));
   }
   if (result.coverage < kPoorCoverage) {
     w.push_back(

@@ -93,7 +93,7 @@ DatasetCalibrationResult CalibrateHexapodDataset(const HexapodDataset& dataset,
           if (p_C_A[j].allFinite()) predictions[j].p_C_A = p_C_A[j];
         }
       }
-      vision::render::ImageView8 view;
+      vision::ImageView8 view;
       view.data = frames[k].pixels.data();
       view.width = camera.width();
       view.height = camera.height();

@@ -11,13 +11,13 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/units.h"
 #include "robots/io/robot_description.h"
 
 namespace kinevis::calibration {
 namespace {
 
 namespace fs = std::filesystem;
-constexpr double kDeg = M_PI / 180.0;
 constexpr const char* kKind = "hexapod-leg-images";
 constexpr int kVersion = 1;
 
@@ -35,8 +35,8 @@ void EmitPose(YAML::Emitter& out, const Eigen::Isometry3d& X) {
   out << YAML::Key << "position" << YAML::Value << YAML::Flow << YAML::BeginSeq;
   for (int i = 0; i < 3; ++i) out << X.translation()[i];
   out << YAML::EndSeq;
-  out << YAML::Key << "rpy_deg" << YAML::Value << YAML::Flow << YAML::BeginSeq << ypr[2] / kDeg
-      << ypr[1] / kDeg << ypr[0] / kDeg << YAML::EndSeq;
+  out << YAML::Key << "rpy_deg" << YAML::Value << YAML::Flow << YAML::BeginSeq
+      << ypr[2] / common::kDeg << ypr[1] / common::kDeg << ypr[0] / common::kDeg << YAML::EndSeq;
   out << YAML::EndMap;
 }
 
@@ -194,9 +194,9 @@ HexapodDataset ReadHexapodDataset(const std::string& directory) {
     const auto rpy = hint["rpy_deg"].as<std::vector<double>>();
     if (p.size() != 3 || rpy.size() != 3) throw std::invalid_argument("size");
     d.X_BC_hint.translation() = Eigen::Vector3d(p[0], p[1], p[2]);
-    d.X_BC_hint.linear() = (Eigen::AngleAxisd(rpy[2] * kDeg, Eigen::Vector3d::UnitZ()) *
-                            Eigen::AngleAxisd(rpy[1] * kDeg, Eigen::Vector3d::UnitY()) *
-                            Eigen::AngleAxisd(rpy[0] * kDeg, Eigen::Vector3d::UnitX()))
+    d.X_BC_hint.linear() = (Eigen::AngleAxisd(rpy[2] * common::kDeg, Eigen::Vector3d::UnitZ()) *
+                            Eigen::AngleAxisd(rpy[1] * common::kDeg, Eigen::Vector3d::UnitY()) *
+                            Eigen::AngleAxisd(rpy[0] * common::kDeg, Eigen::Vector3d::UnitX()))
                                .toRotationMatrix();
   } catch (const std::exception&) {
     problems.push_back("camera.pose_hint: expected {position: [x, y, z], rpy_deg: [r, p, y]}");

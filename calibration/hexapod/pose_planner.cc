@@ -7,6 +7,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/units.h"
 #include "vision/render/scenes/hexapod_scene.h"
 
 namespace kinevis::calibration {
@@ -14,7 +15,6 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr double kPi = 3.14159265358979323846;
 
 // Uniform and normal draws written out on top of std::mt19937_64 (whose output sequence the
 // standard fixes), so a plan is the same for a seed on every standard library.
@@ -25,7 +25,7 @@ class Draw {
   double Normal() {                                                              // Box–Muller
     const double u1 = 1.0 - Uniform();                                           // (0, 1]
     const double u2 = Uniform();
-    return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPi * u2);
+    return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * common::kPi * u2);
   }
 
  private:
@@ -306,10 +306,11 @@ PosePlan PlanCalibrationPoses(const robots::HexapodModel& model,
                             std::to_string(options.poses) + " requested; raise candidates");
   }
   for (int j = 0; j < robots::kHexapodLegs; ++j) {
-    if (plan.legs[j].max_angle < 5.0 * kPi / 180.0) {
+    if (plan.legs[j].max_angle < 5.0 * common::kPi / 180.0) {
       std::ostringstream msg;
       msg << "leg " << j << ": the planned directions span only "
-          << plan.legs[j].max_angle * 180.0 / kPi << " deg; eq. 14 will be poorly conditioned";
+          << plan.legs[j].max_angle * 180.0 / common::kPi
+          << " deg; eq. 14 will be poorly conditioned";
       plan.warnings.push_back(msg.str());
     }
   }

@@ -24,7 +24,7 @@ bool ToPixel(const vision::CameraModel& camera, const Eigen::Vector3d& p_C, cv::
 
 }  // namespace
 
-void WriteReprojectionImage(const std::string& path, const vision::render::ImageView8& image,
+void WriteReprojectionImage(const std::string& path, const vision::ImageView8& image,
                             const vision::CameraModel& camera,
                             const HexapodCalibrationResult& result,
                             const robots::HexapodModel& cad) {

@@ -8,7 +8,7 @@
 #include "calibration/hexapod/leg_calibration.h"
 #include "robots/hexapod/hexapod_model.h"
 #include "vision/camera/camera_model.h"
-#include "vision/render/renderer.h"
+#include "vision/image/image_view.h"
 
 namespace kinevis::calibration {
 
@@ -20,7 +20,7 @@ namespace kinevis::calibration {
 // and a legend line. Points that do not project (behind the camera, outside the model's domain)
 // are listed in the legend as "not shown". Throws std::invalid_argument when the image is empty or
 // its size differs from the camera's, std::runtime_error naming `path` when it cannot be written.
-void WriteReprojectionImage(const std::string& path, const vision::render::ImageView8& image,
+void WriteReprojectionImage(const std::string& path, const vision::ImageView8& image,
                             const vision::CameraModel& camera,
                             const HexapodCalibrationResult& result,
                             const robots::HexapodModel& cad);

@@ -10,6 +10,9 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/config_error.h"
+#include "common/so3.h"
+
 namespace kinevis::calibration {
 namespace {
 
@@ -24,17 +27,6 @@ constexpr int kDiscSamples = 48;
 // median of the ring between kInnerMargin and kOuterMargin.
 constexpr double kInnerMargin = 4.0;
 constexpr double kOuterMargin = 8.0;
-
-class Problems {
- public:
-  void Add(const std::string& name, double value, const char* rule) {
-    out_ << (out_.tellp() > 0 ? "; " : "") << name << " = " << value << " (" << rule << ")";
-  }
-  std::string str() const { return out_.str(); }
-
- private:
-  std::ostringstream out_;
-};
 
 struct Blob {
   Eigen::Vector2d mean = Eigen::Vector2d::Zero();
@@ -127,18 +119,13 @@ double AssignNodes(const Eigen::Matrix3d& H_image_grid, const std::vector<Eigen:
   return worst;
 }
 
-Eigen::Matrix3d Skew(const Eigen::Vector3d& w) {
-  Eigen::Matrix3d S;
-  S << 0.0, -w.z(), w.y(), w.z(), 0.0, -w.x(), -w.y(), w.x(), 0.0;
-  return S;
-}
-
 Eigen::Isometry3d Perturb(const Eigen::Isometry3d& X, const Eigen::Matrix<double, 6, 1>& delta) {
   Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
   const Eigen::Vector3d w = delta.head<3>();
   const double angle = w.norm();
-  const Eigen::Matrix3d R = angle > 0.0 ? Eigen::AngleAxisd(angle, w / angle).toRotationMatrix()
-                                        : Eigen::Matrix3d(Eigen::Matrix3d::Identity() + Skew(w));
+  const Eigen::Matrix3d R = angle > 0.0
+                                ? Eigen::AngleAxisd(angle, w / angle).toRotationMatrix()
+                                : Eigen::Matrix3d(Eigen::Matrix3d::Identity() + common::Skew(w));
   out.linear() = R * X.linear();
   out.translation() = X.translation() + delta.tail<3>();
   return out;
@@ -147,34 +134,34 @@ Eigen::Isometry3d Perturb(const Eigen::Isometry3d& X, const Eigen::Matrix<double
 }  // namespace
 
 std::string BoardPoseOptions::Validate() const {
-  Problems bad;
+  common::Problems bad;
   if (!(threshold_window_px == 0 || (threshold_window_px >= 3 && threshold_window_px % 2 == 1))) {
-    bad.Add("threshold_window_px", threshold_window_px, "0 (auto) or odd >= 3");
+    bad.Add("threshold_window_px", threshold_window_px, "must be 0 (auto) or odd >= 3");
   }
   if (!(std::isfinite(threshold_offset) && threshold_offset > 0.0)) {
-    bad.Add("threshold_offset", threshold_offset, "> 0 grey levels");
+    bad.Add("threshold_offset", threshold_offset, "must be > 0 grey levels");
   }
   if (!(std::isfinite(min_dot_area_px) && min_dot_area_px > 0.0)) {
-    bad.Add("min_dot_area_px", min_dot_area_px, "> 0");
+    bad.Add("min_dot_area_px", min_dot_area_px, "must be > 0");
   }
   if (!(max_dot_area_fraction > 0.0 && max_dot_area_fraction <= 1.0)) {
-    bad.Add("max_dot_area_fraction", max_dot_area_fraction, "in (0, 1]");
+    bad.Add("max_dot_area_fraction", max_dot_area_fraction, "must be in (0, 1]");
   }
   if (!(max_fill_deviation > 0.0 && max_fill_deviation < 1.0)) {
-    bad.Add("max_fill_deviation", max_fill_deviation, "in (0, 1)");
+    bad.Add("max_fill_deviation", max_fill_deviation, "must be in (0, 1)");
   }
   if (!(min_axis_ratio > 0.0 && min_axis_ratio <= 1.0)) {
-    bad.Add("min_axis_ratio", min_axis_ratio, "in (0, 1]");
+    bad.Add("min_axis_ratio", min_axis_ratio, "must be in (0, 1]");
   }
   if (!(max_grid_residual > 0.0 && max_grid_residual < 0.5)) {
-    bad.Add("max_grid_residual", max_grid_residual, "in (0, 0.5) cells");
+    bad.Add("max_grid_residual", max_grid_residual, "must be in (0, 0.5) cells");
   }
-  if (max_iterations < 1) bad.Add("max_iterations", max_iterations, ">= 1");
-  if (!(step_tolerance >= 0.0)) bad.Add("step_tolerance", step_tolerance, ">= 0");
+  if (max_iterations < 1) bad.Add("max_iterations", max_iterations, "must be >= 1");
+  if (!(step_tolerance >= 0.0)) bad.Add("step_tolerance", step_tolerance, "must be >= 0");
   if (!(std::isfinite(max_rms_px) && max_rms_px > 0.0)) {
-    bad.Add("max_rms_px", max_rms_px, "> 0 px");
+    bad.Add("max_rms_px", max_rms_px, "must be > 0 px");
   }
-  return bad.str();
+  return bad.Message();
 }
 
 std::string_view ToString(BoardPoseStatus status) {
@@ -220,7 +207,7 @@ bool ProjectedDiscCentroid(const CameraModel& camera, const Eigen::Isometry3d& X
   return true;
 }
 
-BoardPose DetectDotGrid(const vision::render::ImageView8& image, const CameraModel& camera,
+BoardPose DetectDotGrid(const vision::ImageView8& image, const CameraModel& camera,
                         const DotGrid& grid, const BoardPoseOptions& options) {
   std::string problems = options.Validate();
   const std::string grid_problems = grid.Validate("grid.");
@@ -579,7 +566,7 @@ BoardPose SolveBoardPose(const BoardPose& detection, const CameraModel& camera, 
   return out;
 }
 
-BoardPose EstimateBoardPose(const vision::render::ImageView8& image, const CameraModel& camera,
+BoardPose EstimateBoardPose(const vision::ImageView8& image, const CameraModel& camera,
                             const DotGrid& grid, const BoardPoseOptions& options) {
   const BoardPose detection = DetectDotGrid(image, camera, grid, options);
   if (!detection.ok()) return detection;

@@ -115,7 +115,7 @@ struct BoardPose {
 // Steps 1–3 only: the ordered dots (status kOk with dots filled, pose untouched) or kGridNotFound.
 // The image must be camera-sized. Throws std::invalid_argument for bad options, a bad grid or an
 // image of the wrong size.
-BoardPose DetectDotGrid(const vision::render::ImageView8& image, const vision::CameraModel& camera,
+BoardPose DetectDotGrid(const vision::ImageView8& image, const vision::CameraModel& camera,
                         const vision::render::DotGrid& grid, const BoardPoseOptions& options = {});
 
 // Step 4 from ordered dots (e.g. DetectDotGrid's, or observations from elsewhere): fills the
@@ -124,8 +124,8 @@ BoardPose SolveBoardPose(const BoardPose& detection, const vision::CameraModel& 
                          const vision::render::DotGrid& grid, const BoardPoseOptions& options = {});
 
 // Steps 1–4.
-BoardPose EstimateBoardPose(const vision::render::ImageView8& image,
-                            const vision::CameraModel& camera, const vision::render::DotGrid& grid,
+BoardPose EstimateBoardPose(const vision::ImageView8& image, const vision::CameraModel& camera,
+                            const vision::render::DotGrid& grid,
                             const BoardPoseOptions& options = {});
 
 // The centroid (px) of the image of the disc of radius `radius` (m) centred at p_S_centre on

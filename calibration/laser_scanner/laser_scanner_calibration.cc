@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "calibration/laser_scanner/laser_scanner_calibration_internal.h"
+#include "common/config_error.h"
 
 namespace kinevis::calibration {
 namespace {
@@ -15,18 +16,6 @@ namespace {
 using vision::CameraModel;
 using vision::ProjectionStatus;
 using vision::Ray;
-
-class Problems {
- public:
-  void Add(const std::string& name, double value, const char* rule) {
-    out_ << (out_.tellp() > 0 ? "; " : "") << name << " = " << value << " (" << rule << ")";
-  }
-  void Add(const std::string& text) { out_ << (out_.tellp() > 0 ? "; " : "") << text; }
-  std::string str() const { return out_.str(); }
-
- private:
-  std::ostringstream out_;
-};
 
 std::string Format(double value, int precision = 4) {
   std::ostringstream out;
@@ -153,32 +142,34 @@ void RotatingResiduals(const std::vector<Eigen::Vector3d>& points, const std::ve
 }  // namespace internal
 
 std::string LaserScannerCalibrationOptions::Validate() const {
-  Problems bad;
+  common::Problems bad;
   if (min_points_per_position < 2) {
-    bad.Add("min_points_per_position", min_points_per_position, ">= 2");
+    bad.Add("min_points_per_position", min_points_per_position, "must be >= 2");
   }
-  if (min_fixed_points < 2) bad.Add("min_fixed_points", min_fixed_points, ">= 2");
+  if (min_fixed_points < 2) bad.Add("min_fixed_points", min_fixed_points, "must be >= 2");
   if (!(warn_depth_condition >= 1.0 && warn_depth_condition <= max_depth_condition)) {
-    bad.Add("warn_depth_condition", warn_depth_condition, ">= 1 and <= max_depth_condition");
+    bad.Add("warn_depth_condition", warn_depth_condition,
+            "must be >= 1 and <= max_depth_condition");
   }
-  if (!(max_depth_condition >= 1.0)) bad.Add("max_depth_condition", max_depth_condition, ">= 1");
+  if (!(max_depth_condition >= 1.0))
+    bad.Add("max_depth_condition", max_depth_condition, "must be >= 1");
   if (!(warn_separation_condition >= 1.0 &&
         warn_separation_condition <= max_separation_condition)) {
     bad.Add("warn_separation_condition", warn_separation_condition,
-            ">= 1 and <= max_separation_condition");
+            "must be >= 1 and <= max_separation_condition");
   }
   if (!(max_separation_condition >= 1.0)) {
-    bad.Add("max_separation_condition", max_separation_condition, ">= 1");
+    bad.Add("max_separation_condition", max_separation_condition, "must be >= 1");
   }
   if (!(std::isfinite(outlier_threshold) && outlier_threshold >= 0.0)) {
-    bad.Add("outlier_threshold", outlier_threshold, ">= 0 (0 = off)");
+    bad.Add("outlier_threshold", outlier_threshold, "must be >= 0 (0 = off)");
   }
   if (!(std::isfinite(min_robust_sigma) && min_robust_sigma > 0.0)) {
-    bad.Add("min_robust_sigma", min_robust_sigma, "> 0 m");
+    bad.Add("min_robust_sigma", min_robust_sigma, "must be > 0 m");
   }
-  if (max_iterations < 1) bad.Add("max_iterations", max_iterations, ">= 1");
-  if (!(step_tolerance >= 0.0)) bad.Add("step_tolerance", step_tolerance, ">= 0");
-  return bad.str();
+  if (max_iterations < 1) bad.Add("max_iterations", max_iterations, "must be >= 1");
+  if (!(step_tolerance >= 0.0)) bad.Add("step_tolerance", step_tolerance, "must be >= 0");
+  return bad.Message();
 }
 
 bool IntersectBoard(const CameraModel& camera, const Eigen::Isometry3d& X_CS,
@@ -199,7 +190,7 @@ bool IntersectBoard(const CameraModel& camera, const Eigen::Isometry3d& X_CS,
 LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibrationImage>& images,
                                               const CameraModel& camera,
                                               const LaserScannerCalibrationOptions& options) {
-  Problems bad;
+  common::Problems bad;
   const std::string option_problems = options.Validate();
   if (!option_problems.empty()) bad.Add(option_problems);
   if (images.empty()) bad.Add("no images");
@@ -225,7 +216,8 @@ LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibration
       }
     }
   }
-  if (!bad.str().empty()) throw std::invalid_argument("CalibrateLaserScanner: " + bad.str());
+  if (!bad.Message().empty())
+    throw std::invalid_argument("CalibrateLaserScanner: " + bad.Message());
 
   LaserScannerCalibration out;
   out.images = static_cast<int>(images.size());

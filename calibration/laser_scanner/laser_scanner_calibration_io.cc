@@ -8,14 +8,13 @@
 #include <stdexcept>
 
 #include "calibration/common/yaml_reader_internal.h"
+#include "common/units.h"
 
 namespace kinevis::calibration {
 namespace {
 
 constexpr const char* kKind = "kinevis-laser-scanner-calibration";
 constexpr int kVersion = 1;
-constexpr double kMm = 1e3;
-constexpr double kDeg = 180.0 / M_PI;
 
 using internal::NowUtc;
 
@@ -50,16 +49,16 @@ void WriteLaserScannerCalibration(const std::string& path, const LaserScannerCal
 
   out << YAML::Key << "rotating_laser" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "calibrated" << YAML::Value << r.rotating_calibrated;
-  out << YAML::Key << "b_y_mm" << YAML::Value << kMm * r.geometry.rotating_b_y;
-  out << YAML::Key << "b_y_sigma_mm" << YAML::Value << kMm * r.b_y_sigma();
-  out << YAML::Key << "d_y_mm" << YAML::Value << kMm * r.geometry.rotating_d_y;
-  out << YAML::Key << "d_y_sigma_mm" << YAML::Value << kMm * r.d_y_sigma();
+  out << YAML::Key << "b_y_mm" << YAML::Value << common::kMmPerM * r.geometry.rotating_b_y;
+  out << YAML::Key << "b_y_sigma_mm" << YAML::Value << common::kMmPerM * r.b_y_sigma();
+  out << YAML::Key << "d_y_mm" << YAML::Value << common::kMmPerM * r.geometry.rotating_d_y;
+  out << YAML::Key << "d_y_sigma_mm" << YAML::Value << common::kMmPerM * r.d_y_sigma();
   out << YAML::Key << "b_y_d_y_correlation" << YAML::Value << Correlation(r.rotating_covariance);
   out << YAML::Key << "separation_condition" << YAML::Value << r.separation_condition;
   out << YAML::Key << "points" << YAML::Value << r.rotating_points;
   out << YAML::Key << "outliers" << YAML::Value << r.rotating_outliers;
-  out << YAML::Key << "residual_rms_mm" << YAML::Value << kMm * r.rotating_residual_rms;
-  out << YAML::Key << "residual_max_mm" << YAML::Value << kMm * r.rotating_residual_max;
+  out << YAML::Key << "residual_rms_mm" << YAML::Value << common::kMmPerM * r.rotating_residual_rms;
+  out << YAML::Key << "residual_max_mm" << YAML::Value << common::kMmPerM * r.rotating_residual_max;
   out << YAML::Key << "positions" << YAML::Value << YAML::BeginSeq;
   for (const RotatingPositionEstimate& p : r.positions) {
     out << YAML::Flow << YAML::BeginMap;
@@ -70,26 +69,29 @@ void WriteLaserScannerCalibration(const std::string& path, const LaserScannerCal
     out << YAML::Key << "outliers" << YAML::Value << p.outliers;
     out << YAML::Key << "cot_theta_y" << YAML::Value << p.cot_theta_y;
     out << YAML::Key << "cot_theta_y_sigma" << YAML::Value << p.cot_theta_y_sigma;
-    out << YAML::Key << "b_y_prime_mm" << YAML::Value << kMm * p.b_y_prime;
+    out << YAML::Key << "b_y_prime_mm" << YAML::Value << common::kMmPerM * p.b_y_prime;
     out << YAML::Key << "depth_condition" << YAML::Value << p.depth_condition;
-    out << YAML::Key << "residual_rms_mm" << YAML::Value << kMm * p.residual_rms;
+    out << YAML::Key << "residual_rms_mm" << YAML::Value << common::kMmPerM * p.residual_rms;
     out << YAML::Key << "problem" << YAML::Value << p.problem;
     out << YAML::EndMap;
   }
   out << YAML::EndSeq;
   out << YAML::Key << "stepper" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "fitted" << YAML::Value << r.stepper.fitted;
-  out << YAML::Key << "theta_at_step0_deg" << YAML::Value << kDeg * r.stepper.theta_at_step0;
-  out << YAML::Key << "theta_per_step_deg" << YAML::Value << kDeg * r.stepper.theta_per_step;
-  out << YAML::Key << "residual_rms_deg" << YAML::Value << kDeg * r.stepper.residual_rms;
+  out << YAML::Key << "theta_at_step0_deg" << YAML::Value
+      << common::kDegPerRad * r.stepper.theta_at_step0;
+  out << YAML::Key << "theta_per_step_deg" << YAML::Value
+      << common::kDegPerRad * r.stepper.theta_per_step;
+  out << YAML::Key << "residual_rms_deg" << YAML::Value
+      << common::kDegPerRad * r.stepper.residual_rms;
   out << YAML::Key << "positions" << YAML::Value << r.stepper.positions;
   out << YAML::EndMap;
   out << YAML::EndMap;
 
   out << YAML::Key << "fixed_laser" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "calibrated" << YAML::Value << r.fixed_calibrated;
-  out << YAML::Key << "b_x_prime_mm" << YAML::Value << kMm * r.geometry.fixed_b_x_prime;
-  out << YAML::Key << "b_x_prime_sigma_mm" << YAML::Value << kMm * r.b_x_prime_sigma();
+  out << YAML::Key << "b_x_prime_mm" << YAML::Value << common::kMmPerM * r.geometry.fixed_b_x_prime;
+  out << YAML::Key << "b_x_prime_sigma_mm" << YAML::Value << common::kMmPerM * r.b_x_prime_sigma();
   out << YAML::Key << "cot_theta_x" << YAML::Value << r.geometry.fixed_cot_theta_x;
   out << YAML::Key << "cot_theta_x_sigma" << YAML::Value << r.cot_theta_x_sigma();
   out << YAML::Key << "b_x_prime_cot_theta_x_correlation" << YAML::Value
@@ -97,8 +99,8 @@ void WriteLaserScannerCalibration(const std::string& path, const LaserScannerCal
   out << YAML::Key << "depth_condition" << YAML::Value << r.fixed_depth_condition;
   out << YAML::Key << "points" << YAML::Value << r.fixed_points;
   out << YAML::Key << "outliers" << YAML::Value << r.fixed_outliers;
-  out << YAML::Key << "residual_rms_mm" << YAML::Value << kMm * r.fixed_residual_rms;
-  out << YAML::Key << "residual_max_mm" << YAML::Value << kMm * r.fixed_residual_max;
+  out << YAML::Key << "residual_rms_mm" << YAML::Value << common::kMmPerM * r.fixed_residual_rms;
+  out << YAML::Key << "residual_max_mm" << YAML::Value << common::kMmPerM * r.fixed_residual_max;
   out << YAML::EndMap;
 
   out << YAML::Key << "errors" << YAML::Value << YAML::BeginSeq;
@@ -149,18 +151,20 @@ LaserScannerCalibrationFile ReadLaserScannerCalibration(const std::string& path)
     const std::string k = "rotating_laser.";
     r.rotating_calibrated = in.Bool(rot, "calibrated", k + "calibrated");
     const bool f = r.rotating_calibrated;
-    r.geometry.rotating_b_y = in.Double(rot, "b_y_mm", k + "b_y_mm", f) / kMm;
-    const double sb = in.Double(rot, "b_y_sigma_mm", k + "b_y_sigma_mm", f) / kMm;
-    r.geometry.rotating_d_y = in.Double(rot, "d_y_mm", k + "d_y_mm", f) / kMm;
-    const double sd = in.Double(rot, "d_y_sigma_mm", k + "d_y_sigma_mm", f) / kMm;
+    r.geometry.rotating_b_y = in.Double(rot, "b_y_mm", k + "b_y_mm", f) / common::kMmPerM;
+    const double sb = in.Double(rot, "b_y_sigma_mm", k + "b_y_sigma_mm", f) / common::kMmPerM;
+    r.geometry.rotating_d_y = in.Double(rot, "d_y_mm", k + "d_y_mm", f) / common::kMmPerM;
+    const double sd = in.Double(rot, "d_y_sigma_mm", k + "d_y_sigma_mm", f) / common::kMmPerM;
     const double rho = in.Double(rot, "b_y_d_y_correlation", k + "b_y_d_y_correlation", f);
     r.rotating_covariance << sb * sb, rho * sb * sd, rho * sb * sd, sd * sd;
     r.separation_condition =
         in.Double(rot, "separation_condition", k + "separation_condition", false);
     r.rotating_points = in.Int(rot, "points", k + "points", 0);
     r.rotating_outliers = in.Int(rot, "outliers", k + "outliers", 0);
-    r.rotating_residual_rms = in.Double(rot, "residual_rms_mm", k + "residual_rms_mm", f) / kMm;
-    r.rotating_residual_max = in.Double(rot, "residual_max_mm", k + "residual_max_mm", f) / kMm;
+    r.rotating_residual_rms =
+        in.Double(rot, "residual_rms_mm", k + "residual_rms_mm", f) / common::kMmPerM;
+    r.rotating_residual_max =
+        in.Double(rot, "residual_max_mm", k + "residual_max_mm", f) / common::kMmPerM;
     const YAML::Node positions = in.Child(rot, "positions", k + "positions");
     if (positions && !positions.IsSequence()) in.Bad(k + "positions", "not a list");
     if (positions && positions.IsSequence()) {
@@ -176,9 +180,11 @@ LaserScannerCalibrationFile ReadLaserScannerCalibration(const std::string& path)
         p.cot_theta_y = in.Double(n, "cot_theta_y", pk + "cot_theta_y", p.estimated);
         p.cot_theta_y_sigma =
             in.Double(n, "cot_theta_y_sigma", pk + "cot_theta_y_sigma", p.estimated);
-        p.b_y_prime = in.Double(n, "b_y_prime_mm", pk + "b_y_prime_mm", p.estimated) / kMm;
+        p.b_y_prime =
+            in.Double(n, "b_y_prime_mm", pk + "b_y_prime_mm", p.estimated) / common::kMmPerM;
         p.depth_condition = in.Double(n, "depth_condition", pk + "depth_condition", false);
-        p.residual_rms = in.Double(n, "residual_rms_mm", pk + "residual_rms_mm", p.estimated) / kMm;
+        p.residual_rms =
+            in.Double(n, "residual_rms_mm", pk + "residual_rms_mm", p.estimated) / common::kMmPerM;
         p.problem = in.String(n, "problem", pk + "problem");
         r.positions.push_back(p);
       }
@@ -189,11 +195,13 @@ LaserScannerCalibrationFile ReadLaserScannerCalibration(const std::string& path)
       r.stepper.fitted = in.Bool(stepper, "fitted", sk + "fitted");
       const bool sf = r.stepper.fitted;
       r.stepper.theta_at_step0 =
-          in.Double(stepper, "theta_at_step0_deg", sk + "theta_at_step0_deg", sf) / kDeg;
+          in.Double(stepper, "theta_at_step0_deg", sk + "theta_at_step0_deg", sf) /
+          common::kDegPerRad;
       r.stepper.theta_per_step =
-          in.Double(stepper, "theta_per_step_deg", sk + "theta_per_step_deg", sf) / kDeg;
+          in.Double(stepper, "theta_per_step_deg", sk + "theta_per_step_deg", sf) /
+          common::kDegPerRad;
       r.stepper.residual_rms =
-          in.Double(stepper, "residual_rms_deg", sk + "residual_rms_deg", sf) / kDeg;
+          in.Double(stepper, "residual_rms_deg", sk + "residual_rms_deg", sf) / common::kDegPerRad;
       r.stepper.positions = in.Int(stepper, "positions", sk + "positions", 0);
     }
   }
@@ -202,8 +210,10 @@ LaserScannerCalibrationFile ReadLaserScannerCalibration(const std::string& path)
     const std::string k = "fixed_laser.";
     r.fixed_calibrated = in.Bool(fix, "calibrated", k + "calibrated");
     const bool f = r.fixed_calibrated;
-    r.geometry.fixed_b_x_prime = in.Double(fix, "b_x_prime_mm", k + "b_x_prime_mm", f) / kMm;
-    const double sb = in.Double(fix, "b_x_prime_sigma_mm", k + "b_x_prime_sigma_mm", f) / kMm;
+    r.geometry.fixed_b_x_prime =
+        in.Double(fix, "b_x_prime_mm", k + "b_x_prime_mm", f) / common::kMmPerM;
+    const double sb =
+        in.Double(fix, "b_x_prime_sigma_mm", k + "b_x_prime_sigma_mm", f) / common::kMmPerM;
     r.geometry.fixed_cot_theta_x = in.Double(fix, "cot_theta_x", k + "cot_theta_x", f);
     const double sc = in.Double(fix, "cot_theta_x_sigma", k + "cot_theta_x_sigma", f);
     const double rho = in.Double(fix, "b_x_prime_cot_theta_x_correlation",
@@ -212,8 +222,10 @@ LaserScannerCalibrationFile ReadLaserScannerCalibration(const std::string& path)
     r.fixed_depth_condition = in.Double(fix, "depth_condition", k + "depth_condition", false);
     r.fixed_points = in.Int(fix, "points", k + "points", 0);
     r.fixed_outliers = in.Int(fix, "outliers", k + "outliers", 0);
-    r.fixed_residual_rms = in.Double(fix, "residual_rms_mm", k + "residual_rms_mm", f) / kMm;
-    r.fixed_residual_max = in.Double(fix, "residual_max_mm", k + "residual_max_mm", f) / kMm;
+    r.fixed_residual_rms =
+        in.Double(fix, "residual_rms_mm", k + "residual_rms_mm", f) / common::kMmPerM;
+    r.fixed_residual_max =
+        in.Double(fix, "residual_max_mm", k + "residual_max_mm", f) / common::kMmPerM;
   }
   r.errors = in.Strings(root, "errors", "errors");
   r.warnings = in.Strings(root, "warnings", "warnings");

@@ -267,7 +267,7 @@ LaserScannerDatasetCalibration CalibrateLaserScannerDataset(
     int width = 0, height = 0;
     std::vector<uint8_t> pixels =
         ReadLaserScannerDatasetImage(dataset, *off[pose][0], &width, &height);
-    const vision::render::ImageView8 view{pixels.data(), width, height, static_cast<size_t>(width)};
+    const vision::ImageView8 view{pixels.data(), width, height, static_cast<size_t>(width)};
     const BoardPose board = EstimateBoardPose(view, camera, dataset.board, board_options);
     if (!board.ok()) {
       out.skipped.push_back("board pose " + std::to_string(pose) + " (" + off[pose][0]->image +
@@ -284,8 +284,8 @@ LaserScannerDatasetCalibration CalibrateLaserScannerDataset(
       if (extractor) {
         std::vector<uint8_t> stripe_pixels =
             ReadLaserScannerDatasetImage(dataset, *e, &width, &height);
-        const vision::render::ImageView8 stripe_view{stripe_pixels.data(), width, height,
-                                                     static_cast<size_t>(width)};
+        const vision::ImageView8 stripe_view{stripe_pixels.data(), width, height,
+                                             static_cast<size_t>(width)};
         extractor(stripe_view, &image.fixed_pixels, &image.rotating_pixels);
       } else {
         ReadLaserScannerDatasetStripes(dataset, *e, &image.fixed_pixels, &image.rotating_pixels);

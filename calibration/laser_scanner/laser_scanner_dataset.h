@@ -72,7 +72,7 @@ void ReadLaserScannerDatasetStripes(const LaserScannerDataset& dataset,
 
 // Stripe extraction from a lasers-on image (e.g. vision/laser/laser_stripes.h's).
 using StripeExtractor =
-    std::function<void(const vision::render::ImageView8& image, std::vector<Eigen::Vector2d>* fixed,
+    std::function<void(const vision::ImageView8& image, std::vector<Eigen::Vector2d>* fixed,
                        std::vector<Eigen::Vector2d>* rotating)>;
 
 struct LaserScannerDatasetCalibration {

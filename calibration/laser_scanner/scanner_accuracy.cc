@@ -146,8 +146,8 @@ SimulatedCalibration SimulateScannerCalibration(const vision::CameraModel& camer
   render.seed = options.seed;
   vision::render::Renderer renderer(camera, render);
   std::vector<uint8_t> pixels(static_cast<size_t>(camera.width()) * camera.height());
-  const vision::render::ImageView8 view{pixels.data(), camera.width(), camera.height(),
-                                        static_cast<size_t>(camera.width())};
+  const vision::ImageView8 view{pixels.data(), camera.width(), camera.height(),
+                                static_cast<size_t>(camera.width())};
   std::mt19937_64 rng(options.seed);
   std::normal_distribution<double> noise(0.0, options.noise_px);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);

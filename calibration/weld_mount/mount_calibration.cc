@@ -13,6 +13,7 @@
 #include <stdexcept>
 
 #include "calibration/weld_mount/mount_residuals_internal.h"
+#include "common/config_error.h"
 
 namespace kinevis::calibration {
 namespace {
@@ -23,20 +24,13 @@ using internal::kDhErrors;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 const char* const kPoseNames[6] = {"rx", "ry", "rz", "x", "y", "z"};
 
-class Problems {
- public:
-  template <typename V>
-  void Add(const std::string& field, const V& value, const std::string& expected) {
-    std::ostringstream s;
-    if (out_.tellp() > 0) out_ << "; ";
-    s << field << " = " << value << " (expected " << expected << ")";
-    out_ << s.str();
-  }
-  std::string str() const { return out_.str(); }
-
- private:
-  std::ostringstream out_;
-};
+// A vector's coefficients as text, for problem messages.
+template <typename M>
+std::string Text(const M& m) {
+  std::ostringstream s;
+  s << m;
+  return s.str();
+}
 
 bool IsRigid(const Eigen::Isometry3d& X) {
   const Eigen::Matrix3d R = X.linear();
@@ -227,11 +221,11 @@ ResidualStats Stats(std::vector<double> d, double k_distance) {
 }  // namespace
 
 std::string GaugeBlock::Validate() const {
-  Problems p;
+  common::Problems p;
   if (!(size.allFinite() && size.minCoeff() > 0.0)) {
-    p.Add("block.size", size.transpose(), "finite and > 0 (m)");
+    p.Add("block.size", Text(size.transpose()), "must be finite and > 0 (m)");
   }
-  return p.str();
+  return p.Message();
 }
 
 std::string BlockFeature::Name() const {
@@ -278,37 +272,38 @@ BlockFeature BlockFeature::Parse(const std::string& text) {
 }
 
 std::string MountCalibrationData::Validate() const {
-  Problems p;
+  common::Problems p;
   const std::string block_problem = block.Validate();
   std::string out = block_problem;
   if (!IsRigid(X_5C_guess))
-    p.Add("X_5C_guess", "(not a rigid transform)", "a rotation and a translation");
+    p.Add("X_5C_guess", "(not a rigid transform)", "must be a rotation and a translation");
   if (!IsRigid(X_0B_guess))
-    p.Add("X_0B_guess", "(not a rigid transform)", "a rotation and a translation");
+    p.Add("X_0B_guess", "(not a rigid transform)", "must be a rotation and a translation");
   if (!IsRigid(robot.X_5T))
-    p.Add("robot.X_5T", "(not a rigid transform)", "a rotation and a translation");
+    p.Add("robot.X_5T", "(not a rigid transform)", "must be a rotation and a translation");
   for (size_t i = 0; i < touches.size(); ++i) {
     if (!touches[i].q.allFinite()) {
-      p.Add("touches[" + std::to_string(i) + "].q", touches[i].q.transpose(), "finite");
+      p.Add("touches[" + std::to_string(i) + "].q", Text(touches[i].q.transpose()),
+            "must be finite");
     }
     if (!touches[i].feature.Valid()) {
-      p.Add("touches[" + std::to_string(i) + "].feature", touches[i].feature.sign.transpose(),
-            "signs in {-1, 0, 1}, not all 0");
+      p.Add("touches[" + std::to_string(i) + "].feature", Text(touches[i].feature.sign.transpose()),
+            "must be signs in {-1, 0, 1}, not all 0");
     }
   }
   for (size_t s = 0; s < scans.size(); ++s) {
     if (!scans[s].q.allFinite()) {
-      p.Add("scans[" + std::to_string(s) + "].q", scans[s].q.transpose(), "finite");
+      p.Add("scans[" + std::to_string(s) + "].q", Text(scans[s].q.transpose()), "must be finite");
     }
     for (size_t i = 0; i < scans[s].p_C.size(); ++i) {
       if (!scans[s].p_C[i].allFinite()) {
         p.Add("scans[" + std::to_string(s) + "].p_C[" + std::to_string(i) + "]",
-              scans[s].p_C[i].transpose(), "finite");
+              Text(scans[s].p_C[i].transpose()), "must be finite");
         break;
       }
     }
   }
-  const std::string rest = p.str();
+  const std::string rest = p.Message();
   if (!out.empty() && !rest.empty()) out += "; ";
   return out + rest;
 }
@@ -338,25 +333,27 @@ const char* ToString(MountCalibrationStatus status) {
 }
 
 std::string MountCalibrationOptions::Validate() const {
-  Problems p;
+  common::Problems p;
   if (!(touch_sigma > 0.0 && std::isfinite(touch_sigma)))
-    p.Add("touch_sigma", touch_sigma, "> 0 (m)");
-  if (!(scan_sigma > 0.0 && std::isfinite(scan_sigma))) p.Add("scan_sigma", scan_sigma, "> 0 (m)");
-  if (!(k > 0.0 && std::isfinite(k))) p.Add("k", k, "> 0");
-  if (!(coarse_k > 0.0 && std::isfinite(coarse_k))) p.Add("coarse_k", coarse_k, "> 0");
-  if (max_points_per_scan < 0) p.Add("max_points_per_scan", max_points_per_scan, ">= 0");
+    p.Add("touch_sigma", touch_sigma, "must be > 0 (m)");
+  if (!(scan_sigma > 0.0 && std::isfinite(scan_sigma)))
+    p.Add("scan_sigma", scan_sigma, "must be > 0 (m)");
+  if (!(k > 0.0 && std::isfinite(k))) p.Add("k", k, "must be > 0");
+  if (!(coarse_k > 0.0 && std::isfinite(coarse_k))) p.Add("coarse_k", coarse_k, "must be > 0");
+  if (max_points_per_scan < 0) p.Add("max_points_per_scan", max_points_per_scan, "must be >= 0");
   if (!(rank_tolerance > 0.0 && rank_tolerance < 1.0)) {
-    p.Add("rank_tolerance", rank_tolerance, "in (0, 1)");
+    p.Add("rank_tolerance", rank_tolerance, "must be in (0, 1)");
   }
   if (!(dh_min_independence > 0.0 && dh_min_independence < 1.0)) {
-    p.Add("dh_min_independence", dh_min_independence, "in (0, 1)");
+    p.Add("dh_min_independence", dh_min_independence, "must be in (0, 1)");
   }
-  if (!(warn_condition_number > 1.0)) p.Add("warn_condition_number", warn_condition_number, "> 1");
-  if (!(warn_position_std > 0.0)) p.Add("warn_position_std", warn_position_std, "> 0 (m)");
-  if (!(warn_angle_std > 0.0)) p.Add("warn_angle_std", warn_angle_std, "> 0 (rad)");
-  if (max_iterations < 1) p.Add("max_iterations", max_iterations, ">= 1");
-  if (threads < 1) p.Add("threads", threads, ">= 1");
-  return p.str();
+  if (!(warn_condition_number > 1.0))
+    p.Add("warn_condition_number", warn_condition_number, "must be > 1");
+  if (!(warn_position_std > 0.0)) p.Add("warn_position_std", warn_position_std, "must be > 0 (m)");
+  if (!(warn_angle_std > 0.0)) p.Add("warn_angle_std", warn_angle_std, "must be > 0 (rad)");
+  if (max_iterations < 1) p.Add("max_iterations", max_iterations, "must be >= 1");
+  if (threads < 1) p.Add("threads", threads, "must be >= 1");
+  return p.Message();
 }
 
 std::vector<std::string> DhErrorNames() {

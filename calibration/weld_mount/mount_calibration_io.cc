@@ -10,14 +10,13 @@
 #include <vector>
 
 #include "calibration/common/yaml_reader_internal.h"
+#include "common/units.h"
 
 namespace kinevis::calibration {
 namespace {
 
 constexpr const char* kKind = "kinevis-scanner-mount-calibration";
 constexpr int kVersion = 1;
-constexpr double kMm = 1e3;
-constexpr double kDeg = 180.0 / M_PI;
 constexpr int kPoseParameters = 12;  // mount (6) + block (6)
 constexpr int kDhParameters = 20;
 const char* const kPoseNames[kPoseParameters] = {"mount.rx", "mount.ry", "mount.rz", "mount.x",
@@ -36,7 +35,7 @@ Unit UnitOf(const std::string& parameter) {
   const std::string last = parameter.substr(parameter.rfind('.') + 1);
   const bool angle = last == "rx" || last == "ry" || last == "rz" || last.rfind("alpha", 0) == 0 ||
                      last.rfind("theta", 0) == 0;
-  return angle ? Unit{"deg", kDeg} : Unit{"mm", kMm};
+  return angle ? Unit{"deg", common::kDegPerRad} : Unit{"mm", common::kMmPerM};
 }
 
 // rpy [roll, pitch, yaw] of R = Rz(yaw) Ry(pitch) Rx(roll), pitch in [−90°, 90°].
@@ -70,9 +69,9 @@ void EmitPoseKeys(YAML::Emitter& out, const Eigen::Isometry3d& X) {
   q.normalize();
   if (q.w() < 0.0) q.coeffs() = -q.coeffs();
   out << YAML::Key << "position_mm" << YAML::Value;
-  EmitList(out, X.translation(), 3, kMm);
+  EmitList(out, X.translation(), 3, common::kMmPerM);
   out << YAML::Key << "rpy_deg" << YAML::Value;
-  EmitList(out, Rpy(X.linear()), 3, kDeg);
+  EmitList(out, Rpy(X.linear()), 3, common::kDegPerRad);
   out << YAML::Key << "quaternion_wxyz" << YAML::Value << YAML::Flow << YAML::BeginSeq << q.w()
       << q.x() << q.y() << q.z() << YAML::EndSeq;
 }
@@ -80,9 +79,9 @@ void EmitPoseKeys(YAML::Emitter& out, const Eigen::Isometry3d& X) {
 void EmitStats(YAML::Emitter& out, const char* key, const ResidualStats& s) {
   out << YAML::Key << key << YAML::Value << YAML::Flow << YAML::BeginMap;
   out << YAML::Key << "count" << YAML::Value << s.count;
-  out << YAML::Key << "rms_mm" << YAML::Value << kMm * s.rms;
-  out << YAML::Key << "median_mm" << YAML::Value << kMm * s.median;
-  out << YAML::Key << "max_mm" << YAML::Value << kMm * s.max;
+  out << YAML::Key << "rms_mm" << YAML::Value << common::kMmPerM * s.rms;
+  out << YAML::Key << "median_mm" << YAML::Value << common::kMmPerM * s.median;
+  out << YAML::Key << "max_mm" << YAML::Value << common::kMmPerM * s.max;
   out << YAML::Key << "beyond_k" << YAML::Value << s.beyond_k;
   out << YAML::EndMap;
 }
@@ -122,8 +121,8 @@ class Reader : public internal::CheckedYamlReader {
     Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
     const YAML::Node m = Child(node, name, key);
     if (!m) return X;
-    const Eigen::Vector3d p = Numbers<3>(m, "position_mm", key + ".position_mm") / kMm;
-    const Eigen::Vector3d rpy = Numbers<3>(m, "rpy_deg", key + ".rpy_deg") / kDeg;
+    const Eigen::Vector3d p = Numbers<3>(m, "position_mm", key + ".position_mm") / common::kMmPerM;
+    const Eigen::Vector3d rpy = Numbers<3>(m, "rpy_deg", key + ".rpy_deg") / common::kDegPerRad;
     if (p.allFinite()) X.translation() = p;
     if (rpy.allFinite()) X.linear() = FromRpy(rpy);
     if (!quaternion_required && !m["quaternion_wxyz"]) return X;
@@ -139,9 +138,9 @@ class Reader : public internal::CheckedYamlReader {
     if (rpy.allFinite()) {
       const double angle = Eigen::AngleAxisd(R.transpose() * X.linear()).angle();
       if (angle > 1e-6) {
-        Bad(key + ".quaternion_wxyz", "disagrees with rpy_deg by " + std::to_string(angle * kDeg) +
-                                          " deg (" + Dump(m["quaternion_wxyz"]) + " vs " +
-                                          Dump(m["rpy_deg"]) + ")");
+        Bad(key + ".quaternion_wxyz",
+            "disagrees with rpy_deg by " + std::to_string(angle * common::kDegPerRad) + " deg (" +
+                Dump(m["quaternion_wxyz"]) + " vs " + Dump(m["rpy_deg"]) + ")");
       }
     }
     X.linear() = R;
@@ -153,9 +152,9 @@ class Reader : public internal::CheckedYamlReader {
     const YAML::Node m = Child(node, name, key);
     if (!m) return s;
     s.count = Int(m, "count", key + ".count", 0);
-    s.rms = NonNegative(m, "rms_mm", key + ".rms_mm") / kMm;
-    s.median = NonNegative(m, "median_mm", key + ".median_mm") / kMm;
-    s.max = NonNegative(m, "max_mm", key + ".max_mm") / kMm;
+    s.rms = NonNegative(m, "rms_mm", key + ".rms_mm") / common::kMmPerM;
+    s.median = NonNegative(m, "median_mm", key + ".median_mm") / common::kMmPerM;
+    s.max = NonNegative(m, "max_mm", key + ".max_mm") / common::kMmPerM;
     s.beyond_k = Int(m, "beyond_k", key + ".beyond_k", 0);
     return s;
   }
@@ -236,11 +235,11 @@ void WriteScannerMountCalibration(const std::string& path, const MountCalibratio
     position_sigma(i) = std::sqrt(C(3 + i, 3 + i));
   }
   out << YAML::Key << "position_sigma_mm" << YAML::Value;
-  EmitList(out, position_sigma, 3, kMm);
+  EmitList(out, position_sigma, 3, common::kMmPerM);
   out << YAML::Key << "rotation_sigma_deg" << YAML::Value;
-  EmitList(out, rotation_sigma, 3, kDeg);
-  out << YAML::Key << "position_std_mm" << YAML::Value << kMm * s.mount_position_std;
-  out << YAML::Key << "angle_std_deg" << YAML::Value << kDeg * s.mount_angle_std;
+  EmitList(out, rotation_sigma, 3, common::kDegPerRad);
+  out << YAML::Key << "position_std_mm" << YAML::Value << common::kMmPerM * s.mount_position_std;
+  out << YAML::Key << "angle_std_deg" << YAML::Value << common::kDegPerRad * s.mount_angle_std;
   out << YAML::Key << "covariance_rad_m" << YAML::Value << YAML::BeginSeq;
   for (int r = 0; r < 6; ++r) EmitList(out, C.row(r), 6);
   out << YAML::EndSeq;
@@ -251,17 +250,17 @@ void WriteScannerMountCalibration(const std::string& path, const MountCalibratio
   const Eigen::AngleAxisd dR(metadata.X_5C_guess.linear().transpose() * s.X_5C.linear());
   out << YAML::Key << "correction" << YAML::Value << YAML::Flow << YAML::BeginMap;
   out << YAML::Key << "position_mm" << YAML::Value;
-  EmitList(out, dp, 3, kMm);
+  EmitList(out, dp, 3, common::kMmPerM);
   out << YAML::Key << "rotation_vector_deg" << YAML::Value;
-  EmitList(out, Eigen::Vector3d(dR.angle() * dR.axis()), 3, kDeg);
-  out << YAML::Key << "distance_mm" << YAML::Value << kMm * dp.norm();
-  out << YAML::Key << "angle_deg" << YAML::Value << kDeg * dR.angle();
+  EmitList(out, Eigen::Vector3d(dR.angle() * dR.axis()), 3, common::kDegPerRad);
+  out << YAML::Key << "distance_mm" << YAML::Value << common::kMmPerM * dp.norm();
+  out << YAML::Key << "angle_deg" << YAML::Value << common::kDegPerRad * dR.angle();
   out << YAML::EndMap;
   out << YAML::EndMap;
 
   out << YAML::Key << "block" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "size_mm" << YAML::Value;
-  EmitList(out, metadata.block.size, 3, kMm);
+  EmitList(out, metadata.block.size, 3, common::kMmPerM);
   EmitPoseKeys(out, s.X_0B);
   out << YAML::Key << "guess" << YAML::Value << YAML::BeginMap;
   EmitPoseKeys(out, metadata.X_0B_guess);
@@ -363,8 +362,9 @@ ScannerMountCalibrationFile ReadScannerMountCalibration(const std::string& path)
     in.Numbers<3>(mount, "position_sigma_mm", "mount.position_sigma_mm", false);
     in.Numbers<3>(mount, "rotation_sigma_deg", "mount.rotation_sigma_deg", false);
     s.mount_position_std =
-        in.Double(mount, "position_std_mm", "mount.position_std_mm", false) / kMm;
-    s.mount_angle_std = in.Double(mount, "angle_std_deg", "mount.angle_std_deg", false) / kDeg;
+        in.Double(mount, "position_std_mm", "mount.position_std_mm", false) / common::kMmPerM;
+    s.mount_angle_std =
+        in.Double(mount, "angle_std_deg", "mount.angle_std_deg", false) / common::kDegPerRad;
     const YAML::Node cov = in.Child(mount, "covariance_rad_m", "mount.covariance_rad_m");
     if (cov && (!cov.IsSequence() || cov.size() != 6)) {
       in.Bad("mount.covariance_rad_m", "must be 6 rows of 6 numbers (" + Reader::Dump(cov) + ")");
@@ -422,7 +422,7 @@ ScannerMountCalibrationFile ReadScannerMountCalibration(const std::string& path)
 
   const YAML::Node block = in.Child(root, "block", "block");
   if (block) {
-    m.block.size = in.Numbers<3>(block, "size_mm", "block.size_mm") / kMm;
+    m.block.size = in.Numbers<3>(block, "size_mm", "block.size_mm") / common::kMmPerM;
     if (m.block.size.allFinite() && !m.block.Validate().empty()) {
       in.Bad("block.size_mm", "each size must be > 0 (" + Reader::Dump(block["size_mm"]) + ")");
     }

@@ -14,6 +14,7 @@
 #include <stdexcept>
 
 #include "calibration/common/csv_internal.h"
+#include "common/units.h"
 
 namespace kinevis::calibration {
 namespace {
@@ -29,10 +30,9 @@ constexpr const char* kTouchHeader =
 constexpr const char* kScanHeader =
     "scan,theta1_deg,theta2_deg,pz3_mm,theta4_deg,theta5_deg,laser,cot_theta_y,points,image";
 constexpr const char* kPointsHeader = "x_mm,y_mm,z_mm,confidence";
-constexpr double kDeg = 180.0 / M_PI;
-constexpr double kMm = 1e3;
 // File units per joint: degrees for the revolute joints, mm for pz3.
-constexpr double kJointScale[5] = {kDeg, kDeg, kMm, kDeg, kDeg};
+constexpr double kJointScale[5] = {common::kDegPerRad, common::kDegPerRad, common::kMmPerM,
+                                   common::kDegPerRad, common::kDegPerRad};
 
 std::string NowUtc() {
   const std::time_t now = std::time(nullptr);
@@ -51,11 +51,12 @@ std::string Num(double v) {
 
 void EmitPose(YAML::Emitter& out, const Eigen::Isometry3d& X) {
   const Eigen::Vector3d ypr = X.linear().eulerAngles(2, 1, 0);
-  const Eigen::Vector3d p = X.translation() * kMm;
+  const Eigen::Vector3d p = X.translation() * common::kMmPerM;
   out << YAML::BeginMap << YAML::Key << "position_mm" << YAML::Value << YAML::Flow << YAML::BeginSeq
       << p.x() << p.y() << p.z() << YAML::EndSeq;
-  out << YAML::Key << "rpy_deg" << YAML::Value << YAML::Flow << YAML::BeginSeq << ypr.z() * kDeg
-      << ypr.y() * kDeg << ypr.x() * kDeg << YAML::EndSeq << YAML::EndMap;
+  out << YAML::Key << "rpy_deg" << YAML::Value << YAML::Flow << YAML::BeginSeq
+      << ypr.z() * common::kDegPerRad << ypr.y() * common::kDegPerRad
+      << ypr.x() * common::kDegPerRad << YAML::EndSeq << YAML::EndMap;
 }
 
 std::string JointFields(const robots::Vector5d& q) {
@@ -107,8 +108,8 @@ class YamlReader {
   }
   Eigen::Isometry3d Pose(const YAML::Node& n, const std::string& key) const {
     const YAML::Node c = Child(n, key);
-    const Eigen::Vector3d p = Vector(c, key + ".position_mm") / kMm;
-    const Eigen::Vector3d rpy = Vector(c, key + ".rpy_deg") / kDeg;
+    const Eigen::Vector3d p = Vector(c, key + ".position_mm") / common::kMmPerM;
+    const Eigen::Vector3d rpy = Vector(c, key + ".rpy_deg") / common::kDegPerRad;
     Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
     X.linear() = (Eigen::AngleAxisd(rpy.z(), Eigen::Vector3d::UnitZ()) *
                   Eigen::AngleAxisd(rpy.y(), Eigen::Vector3d::UnitY()) *
@@ -176,7 +177,7 @@ void CreateMountDataset(MountDataset* dataset) {
   out << YAML::Key << "robot" << YAML::Value << dataset->robot_description;
   out << YAML::Key << "scanner" << YAML::Value << dataset->scanner;
   out << YAML::Key << "block" << YAML::Value << YAML::BeginMap;
-  const Eigen::Vector3d size = dataset->block.size * kMm;
+  const Eigen::Vector3d size = dataset->block.size * common::kMmPerM;
   out << YAML::Key << "size_mm" << YAML::Value << YAML::Flow << YAML::BeginSeq << size.x()
       << size.y() << size.z() << YAML::EndSeq;
   out << YAML::Key << "guess" << YAML::Value;
@@ -241,7 +242,7 @@ void AppendMountScan(MountDataset* dataset, MountDatasetScan scan,
     std::ofstream f(dir / scan.points);
     f << kPointsHeader << "\n";
     for (size_t i = 0; i < p_C->size(); ++i) {
-      const Eigen::Vector3d p = (*p_C)[i] * kMm;
+      const Eigen::Vector3d p = (*p_C)[i] * common::kMmPerM;
       if (!p.allFinite())
         throw std::invalid_argument(where + "point " + std::to_string(i) + " not finite");
       f << Num(p.x()) << "," << Num(p.y()) << "," << Num(p.z()) << ","
@@ -283,7 +284,7 @@ MountDataset ReadMountDataset(const std::string& directory) {
   d.robot_description = r.String(root, "robot");
   d.scanner = r.String(root, "scanner");
   const YAML::Node block = r.Child(root, "block");
-  d.block.size = r.Vector(block, "block.size_mm") / kMm;
+  d.block.size = r.Vector(block, "block.size_mm") / common::kMmPerM;
   if (!d.block.Validate().empty()) r.Fail("block.size_mm", "each size must be > 0");
   d.X_0B_guess = r.Pose(block, "block.guess");
   d.X_5C_guess = r.Pose(root, "mount_guess");
@@ -378,7 +379,7 @@ std::vector<Eigen::Vector3d> ReadMountScanPoints(const MountDataset& dataset,
                                   std::to_string(line) + ": confidence " + f[3] +
                                   " outside [0, 1]");
     }
-    points.emplace_back(v[0] / kMm, v[1] / kMm, v[2] / kMm);
+    points.emplace_back(v[0] / common::kMmPerM, v[1] / common::kMmPerM, v[2] / common::kMmPerM);
     if (confidence != nullptr) confidence->push_back(static_cast<float>(v[3]));
   });
   return points;

@@ -13,6 +13,7 @@
 
 #include "calibration/common/csv_internal.h"
 #include "calibration/common/yaml_reader_internal.h"
+#include "common/units.h"
 
 namespace kinevis::calibration {
 namespace {
@@ -24,11 +25,10 @@ namespace fs = std::filesystem;
 constexpr const char* kKind = "kinevis-scan-dataset";
 constexpr const char* kHeader =
     "frame,image,theta1_deg,theta2_deg,pz3_mm,theta4_deg,theta5_deg,commanded_cot_theta_y";
-constexpr double kDeg = M_PI / 180.0;
 
 // Joint j to its file unit (deg, or mm for pz3) and back.
-double ToFile(int j, double q) { return j == 2 ? 1e3 * q : q / kDeg; }
-double FromFile(int j, double v) { return j == 2 ? 1e-3 * v : v * kDeg; }
+double ToFile(int j, double q) { return j == 2 ? 1e3 * q : q / common::kDeg; }
+double FromFile(int j, double v) { return j == 2 ? 1e-3 * v : v * common::kDeg; }
 
 }  // namespace
 

@@ -7,10 +7,10 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/clock.h"
+
 namespace kinevis::control {
 namespace {
-
-double ToSeconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
 
 // Order statistic at fraction f of a sorted vector (nearest rank).
 double Quantile(const std::vector<double>& sorted, double f) {
@@ -81,10 +81,10 @@ PeriodStatistics ComputePeriodStatistics(double target_s, std::vector<double> pe
   return s;
 }
 
-DeadlineGrid::DeadlineGrid(hal::Clock* clock, hal::Duration period, hal::Duration start)
+DeadlineGrid::DeadlineGrid(common::Clock* clock, common::Duration period, common::Duration start)
     : clock_(clock), period_(period), next_(start) {
   if (clock == nullptr) throw std::invalid_argument("DeadlineGrid: null clock");
-  if (period <= hal::Duration::zero()) {
+  if (period <= common::Duration::zero()) {
     throw std::invalid_argument("DeadlineGrid: period = " + std::to_string(period.count()) +
                                 " ns (must be > 0)");
   }
@@ -95,20 +95,20 @@ DeadlineGrid::Wake DeadlineGrid::Next() {
   clock_->SleepUntil(next_);
   Wake wake;
   wake.time = clock_->Now();
-  const hal::Duration late = wake.time - next_;
+  const common::Duration late = wake.time - next_;
   if (late > period_) {  // woke more than a period late: re-synchronise the grid
     missed_ += static_cast<uint64_t>(late / period_);
     next_ = wake.time;
   }
-  wake.lateness_s = std::max(0.0, ToSeconds(late));
+  wake.lateness_s = std::max(0.0, common::ToSeconds(late));
   wake.first = !woke_before_;
-  wake.period_s = woke_before_ ? ToSeconds(wake.time - previous_wake_) : 0.0;
+  wake.period_s = woke_before_ ? common::ToSeconds(wake.time - previous_wake_) : 0.0;
   previous_wake_ = wake.time;
   woke_before_ = true;
   return wake;
 }
 
-PeriodStatistics MeasureLoopTiming(hal::Clock* clock, double period_s, double duration_s) {
+PeriodStatistics MeasureLoopTiming(common::Clock* clock, double period_s, double duration_s) {
   if (clock == nullptr) throw std::invalid_argument("MeasureLoopTiming: null clock");
   if (!(period_s > 0.0 && period_s <= 1.0)) {
     throw std::invalid_argument("MeasureLoopTiming: period = " + std::to_string(period_s) +
@@ -119,14 +119,14 @@ PeriodStatistics MeasureLoopTiming(hal::Clock* clock, double period_s, double du
                                 " s (must be in [period, 3600])");
   }
   const auto period =
-      std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(period_s));
+      std::chrono::duration_cast<common::Duration>(std::chrono::duration<double>(period_s));
   const size_t cycles = static_cast<size_t>(std::ceil(duration_s / period_s));
   std::vector<double> periods, lateness;
   periods.reserve(cycles);
   lateness.reserve(cycles);
-  const hal::Duration start = clock->Now();
-  const hal::Duration end =
-      start + std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(duration_s));
+  const common::Duration start = clock->Now();
+  const common::Duration end = start + std::chrono::duration_cast<common::Duration>(
+                                           std::chrono::duration<double>(duration_s));
   DeadlineGrid grid(clock, period, start);
   for (;;) {
     const DeadlineGrid::Wake wake = grid.Next();

@@ -5,7 +5,7 @@
 // control loop reports can be compared with what the machine itself allows.
 //
 // DeadlineGrid: deadlines on a fixed grid start + k·period. Next() sleeps to the next deadline on
-// the loop's hal::Clock and returns the wake-up: the period since the previous wake-up and the
+// the loop's common::Clock and returns the wake-up: the period since the previous wake-up and the
 // lateness past the deadline. A wake-up more than one period late re-synchronises the grid to the
 // wake-up time instead of bursting through the missed deadlines; those are counted.
 //
@@ -16,7 +16,7 @@
 #include <string>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 
 namespace kinevis::control {
 
@@ -46,24 +46,24 @@ PeriodStatistics ComputePeriodStatistics(double target_s, std::vector<double> pe
 class DeadlineGrid {
  public:
   struct Wake {
-    hal::Duration time{0};  // the clock's time at the wake-up
-    double period_s = 0.0;  // since the previous wake-up; 0 for the first
+    common::Duration time{0};  // the clock's time at the wake-up
+    double period_s = 0.0;     // since the previous wake-up; 0 for the first
     double lateness_s = 0.0;
     bool first = true;
   };
 
   // period > 0; the clock must outlive the grid. The grid starts at `start` (the first deadline
   // is start + period).
-  DeadlineGrid(hal::Clock* clock, hal::Duration period, hal::Duration start);
+  DeadlineGrid(common::Clock* clock, common::Duration period, common::Duration start);
 
   Wake Next();
   uint64_t missed_deadlines() const { return missed_; }
 
  private:
-  hal::Clock* clock_;
-  hal::Duration period_;
-  hal::Duration next_;
-  hal::Duration previous_wake_{0};
+  common::Clock* clock_;
+  common::Duration period_;
+  common::Duration next_;
+  common::Duration previous_wake_{0};
   bool woke_before_ = false;
   uint64_t missed_ = 0;
 };
@@ -71,7 +71,7 @@ class DeadlineGrid {
 // How steadily this host paces an empty loop at `period_s` for `duration_s` on `clock` (the same
 // DeadlineGrid the control loops use; nothing else runs in the cycle, so io and compute stay 0).
 // Throws std::invalid_argument unless 0 < period_s <= 1 and period_s <= duration_s <= 3600.
-PeriodStatistics MeasureLoopTiming(hal::Clock* clock, double period_s, double duration_s);
+PeriodStatistics MeasureLoopTiming(common::Clock* clock, double period_s, double duration_s);
 
 // Whether a run held its rate: no missed deadline and a p99 period within 10 % of the target.
 // Empty when it did, else what failed, with the figures.

@@ -29,7 +29,7 @@ std::string DiamondDriveBusConfig::Validate() const {
 }
 
 std::unique_ptr<hal::Rs485DriveBus> MakeDiamondDriveBus(const DiamondDriveBusConfig& config,
-                                                        hal::Clock* clock) {
+                                                        common::Clock* clock) {
   if (const std::string p = config.Validate(); !p.empty()) {
     throw std::invalid_argument("diamond drives: " + p);
   }

@@ -10,7 +10,7 @@
 #include <memory>
 #include <string>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/drive/rs485_drive.h"
 #include "robots/diamond/diamond_model.h"
 
@@ -31,10 +31,10 @@ struct DiamondDriveBusConfig {
 };
 
 // Builds the bus and its two drives ("arm1", "arm2") on `clock` (nullptr: SteadyClock). Throws
-// std::invalid_argument for a bad config, hal::ConfigError / hal::HalError from the HAL (bad
+// std::invalid_argument for a bad config, common::ConfigError / hal::HalError from the HAL (bad
 // backend string, the serial device cannot be opened).
 std::unique_ptr<hal::Rs485DriveBus> MakeDiamondDriveBus(const DiamondDriveBusConfig& config,
-                                                        hal::Clock* clock);
+                                                        common::Clock* clock);
 
 // Configures and enables both drives (CSP). Throws hal::HalError naming the drive and the step,
 // or std::runtime_error when enabling fails (naming the drive and its last error).

@@ -12,22 +12,11 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/clock.h"
+#include "common/config_error.h"
+
 namespace kinevis::control {
 namespace {
-
-double ToSeconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
-
-class Problems {
- public:
-  void Add(const std::string& field, double value, const char* rule) {
-    out_ << (out_.tellp() > 0 ? "; " : "") << field << " = " << value << " (" << rule << ")";
-  }
-  void Add(const std::string& text) { out_ << (out_.tellp() > 0 ? "; " : "") << text; }
-  std::string str() const { return out_.str(); }
-
- private:
-  std::ostringstream out_;
-};
 
 // Normalised image coordinates of a pixel's ray (distortion removed); false when the camera
 // cannot back-project it or the ray does not point forward.
@@ -97,13 +86,13 @@ DiamondLine DiamondLine::SeedHorizontal(DiamondLineKind kind) {
 }
 
 std::string DiamondLine::Validate() const {
-  Problems p;
+  common::Problems p;
   if (!from.allFinite()) p.Add("line.from: must be finite");
   if (!to.allFinite()) p.Add("line.to: must be finite");
   if (!(std::isfinite(duration_s) && duration_s > 0)) {
     p.Add("line.duration_s", duration_s, "must be > 0");
   }
-  return p.str();
+  return p.Message();
 }
 
 bool DiamondLineReference(const DiamondLine& line, double radius, double t, Eigen::Vector2d* task,
@@ -138,7 +127,7 @@ bool DiamondLineReference(const DiamondLine& line, double radius, double t, Eige
 // Task-space PD
 
 std::string DiamondPdOptions::Validate() const {
-  Problems p;
+  common::Problems p;
   if (!(std::isfinite(kp) && kp > 0)) p.Add("kp", kp, "must be > 0 (1/s)");
   if (!(std::isfinite(kd) && kd >= 0)) p.Add("kd", kd, "must be >= 0");
   if (!(std::isfinite(derivative_filter_s) && derivative_filter_s >= 0)) {
@@ -148,20 +137,20 @@ std::string DiamondPdOptions::Validate() const {
   if (!(settle_dwell_s >= 0)) p.Add("settle_dwell_s", settle_dwell_s, "must be >= 0 s");
   if (!(settle_timeout_s > 0)) p.Add("settle_timeout_s", settle_timeout_s, "must be > 0 s");
   if (!(max_condition > 1)) p.Add("max_condition", max_condition, "must be > 1");
-  return p.str();
+  return p.Message();
 }
 
 DiamondTaskPdLaw::DiamondTaskPdLaw(const robots::DiamondModel& model, const DiamondLine& line,
                                    DiamondPdOptions options)
     : model_(model), line_(line), options_(options) {
-  Problems p;
+  common::Problems p;
   if (const std::string m = model.Validate(); !m.empty()) p.Add("model: " + m);
   if (const std::string l = line.Validate(); !l.empty()) p.Add(l);
   if (const std::string o = options.Validate(); !o.empty()) p.Add(o);
-  if (!p.str().empty()) throw std::invalid_argument("DiamondTaskPdLaw: " + p.str());
+  if (!p.Message().empty()) throw std::invalid_argument("DiamondTaskPdLaw: " + p.Message());
 }
 
-void DiamondTaskPdLaw::Start(const Eigen::Vector2d& /*q*/, hal::Duration /*now*/) {
+void DiamondTaskPdLaw::Start(const Eigen::Vector2d& /*q*/, common::Duration /*now*/) {
   have_prev_ = false;
   e_rate_.setZero();
   settled_since_ = -1.0;
@@ -257,9 +246,9 @@ DetectedMarkerSource::DetectedMarkerSource(Grabber grabber, vision::MarkerDetect
   if (!grabber_) throw std::invalid_argument("DetectedMarkerSource: the grabber is empty");
 }
 
-bool DetectedMarkerSource::Poll(hal::Duration now, MarkerFrame* frame) {
-  vision::render::ImageView8 image;
-  hal::Duration timestamp = now;
+bool DetectedMarkerSource::Poll(common::Duration now, MarkerFrame* frame) {
+  vision::ImageView8 image;
+  common::Duration timestamp = now;
   if (!grabber_(now, &image, &timestamp)) return false;
   vision::MarkerDetection d = detector_.Detect(image, have_last_ ? &last_ : nullptr);
   // Lost from the window (a fast move, or a wrong prediction): search the whole image once.
@@ -279,7 +268,7 @@ bool DetectedMarkerSource::Poll(hal::Duration now, MarkerFrame* frame) {
 // Visual servo
 
 std::string DiamondIbvsOptions::Validate() const {
-  Problems p;
+  common::Problems p;
   if (!(std::isfinite(gain) && gain > 0)) p.Add("gain", gain, "must be > 0 (1/s)");
   if (!(convergence_px > 0)) p.Add("convergence_px", convergence_px, "must be > 0 px");
   if (!(convergence_dwell_s >= 0)) {
@@ -293,7 +282,7 @@ std::string DiamondIbvsOptions::Validate() const {
     p.Add("first_frame_timeout_s", first_frame_timeout_s, "must be > 0 s");
   }
   if (!(max_condition > 1)) p.Add("max_condition", max_condition, "must be > 1");
-  return p.str();
+  return p.Message();
 }
 
 struct DiamondMarkerServo::Impl {
@@ -321,12 +310,12 @@ DiamondMarkerServo::DiamondMarkerServo(const robots::DiamondModel& model,
                                        const Eigen::Isometry3d& X_CO, MarkerFeatureSource* source,
                                        DiamondIbvsOptions options)
     : model_(model), camera_(camera), X_CO_(X_CO), source_(source), options_(options) {
-  Problems p;
+  common::Problems p;
   if (const std::string m = model.Validate(); !m.empty()) p.Add("model: " + m);
   if (const std::string o = options.Validate(); !o.empty()) p.Add(o);
   if (!X_CO.matrix().allFinite()) p.Add("X_CO: must be finite");
   if (source == nullptr) p.Add("source: must not be null");
-  if (!p.str().empty()) throw std::invalid_argument("DiamondMarkerServo: " + p.str());
+  if (!p.Message().empty()) throw std::invalid_argument("DiamondMarkerServo: " + p.Message());
   impl_ = std::make_unique<Impl>(X_CO_, options_.gain);
 }
 
@@ -381,7 +370,7 @@ bool DiamondMarkerServo::Compute(const Eigen::Vector2d& q, const Eigen::Vector2d
   return true;
 }
 
-void DiamondMarkerServo::Start(const Eigen::Vector2d& /*q*/, hal::Duration now) {
+void DiamondMarkerServo::Start(const Eigen::Vector2d& /*q*/, common::Duration now) {
   start_ = now;
   last_frame_ = now;
   have_frame_ = false;
@@ -437,13 +426,13 @@ DiamondLawOutput DiamondMarkerServo::Step(const DiamondCycleInput& in) {
   if (!have_frame_) {
     out.state = DiamondLawState::kHold;
     out.reason = "waiting for the first camera frame";
-    if (ToSeconds(in.now - start_) > options_.first_frame_timeout_s) {
+    if (common::ToSeconds(in.now - start_) > options_.first_frame_timeout_s) {
       out.state = DiamondLawState::kStop;
       out.reason = "no camera frame";
     }
     return out;
   }
-  if (ToSeconds(in.now - last_frame_) > options_.stale_camera_timeout_s) {
+  if (common::ToSeconds(in.now - last_frame_) > options_.stale_camera_timeout_s) {
     out.state = DiamondLawState::kStop;
     out.reason = "camera stale";
     return out;

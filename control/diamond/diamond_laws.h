@@ -21,7 +21,7 @@
 #include <memory>
 #include <string>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "robots/diamond/diamond_model.h"
 #include "vision/camera/camera_model.h"
 #include "vision/diamond/marker_detector.h"
@@ -32,7 +32,7 @@ namespace kinevis::control {
 // What a law sees and returns each cycle.
 
 struct DiamondCycleInput {
-  hal::Duration now{0};                         // loop clock
+  common::Duration now{0};                      // loop clock
   double t = 0.0;                               // s since the start of the run
   double dt = 0.0;                              // nominal cycle period (s)
   Eigen::Vector2d q = Eigen::Vector2d::Zero();  // joint readings (rad)
@@ -64,7 +64,7 @@ class DiamondLaw {
  public:
   virtual ~DiamondLaw() = default;
   // A new run starts at joint readings q (rad). Resets the law's state.
-  virtual void Start(const Eigen::Vector2d& q, hal::Duration now) = 0;
+  virtual void Start(const Eigen::Vector2d& q, common::Duration now) = 0;
   // One cycle. Never throws, never blocks; no heap allocation for the PD law.
   virtual DiamondLawOutput Step(const DiamondCycleInput& input) = 0;
 };
@@ -135,7 +135,7 @@ class DiamondTaskPdLaw final : public DiamondLaw {
   // Throws std::invalid_argument naming every bad option, model field or line field.
   DiamondTaskPdLaw(const robots::DiamondModel& model, const DiamondLine& line,
                    DiamondPdOptions options = {});
-  void Start(const Eigen::Vector2d& q, hal::Duration now) override;
+  void Start(const Eigen::Vector2d& q, common::Duration now) override;
   DiamondLawOutput Step(const DiamondCycleInput& input) override;
 
   const robots::DiamondModel& model() const { return model_; }
@@ -172,7 +172,7 @@ bool MarkerPixelJacobian(const vision::CameraModel& camera, const Eigen::Isometr
 // ---------------------------------------------------------------------------------------------
 // Where the visual servo gets the marker: one camera frame's detection.
 struct MarkerFrame {
-  hal::Duration timestamp{0};  // when the image was taken (loop clock)
+  common::Duration timestamp{0};  // when the image was taken (loop clock)
   bool found = false;
   Eigen::Vector2d pixel = Eigen::Vector2d::Zero();  // detected marker centre (px), when found
   double confidence = 0.0;
@@ -185,7 +185,7 @@ class MarkerFeatureSource {
   virtual ~MarkerFeatureSource() = default;
   // Called once per loop cycle; true with *frame filled when a new camera frame was processed
   // (found or not), false when none is due. Must not block for long.
-  virtual bool Poll(hal::Duration now, MarkerFrame* frame) = 0;
+  virtual bool Poll(common::Duration now, MarkerFrame* frame) = 0;
 };
 
 // Images from a grabber, through the MarkerDetector: the search window follows the last
@@ -194,11 +194,11 @@ class DetectedMarkerSource final : public MarkerFeatureSource {
  public:
   // Returns true and a view of a new image (valid until the next call) when a frame is due at
   // `now`, with its capture time; false otherwise.
-  using Grabber = std::function<bool(hal::Duration now, vision::render::ImageView8* image,
-                                     hal::Duration* timestamp)>;
+  using Grabber = std::function<bool(common::Duration now, vision::ImageView8* image,
+                                     common::Duration* timestamp)>;
   // Throws std::invalid_argument for an empty grabber or bad detector options.
   DetectedMarkerSource(Grabber grabber, vision::MarkerDetectorOptions options = {});
-  bool Poll(hal::Duration now, MarkerFrame* frame) override;
+  bool Poll(common::Duration now, MarkerFrame* frame) override;
   uint64_t frames() const { return sequence_; }
 
  private:
@@ -258,7 +258,7 @@ class DiamondMarkerServo final : public DiamondLaw {
   void SetTarget(const Eigen::Vector2d& pixel);
   const Eigen::Vector2d& target() const { return target_px_; }
 
-  void Start(const Eigen::Vector2d& q, hal::Duration now) override;
+  void Start(const Eigen::Vector2d& q, common::Duration now) override;
   DiamondLawOutput Step(const DiamondCycleInput& input) override;
 
   // The law for one frame, outside the loop (tests, bench): q̇ from the detected pixel at joint
@@ -278,8 +278,8 @@ class DiamondMarkerServo final : public DiamondLaw {
   bool has_target_ = false;
   std::unique_ptr<Impl> impl_;
   // Run state.
-  hal::Duration start_{0};
-  hal::Duration last_frame_{0};
+  common::Duration start_{0};
+  common::Duration last_frame_{0};
   bool have_frame_ = false;
   int lost_frames_ = 0;
   Eigen::Vector2d q_dot_ = Eigen::Vector2d::Zero();

@@ -10,6 +10,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/clock.h"
 #include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
 
@@ -17,11 +18,6 @@ namespace kinevis::control {
 namespace {
 
 using robots::kDiamondJoints;
-
-hal::Duration Seconds(double s) {
-  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
-}
-double ToSeconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
 
 // Largest |w_i · u − cos β| of a forward kinematics result: zero when both limbs close on the
 // tool axis, i.e. the tool point is on the sphere of the RCM through a real assembly.
@@ -91,7 +87,7 @@ double Straightness(const std::vector<Eigen::Vector2d>& points) {
   return std::sqrt(std::max(0.0, lambda_min));
 }
 
-DiamondControlLoop::DiamondControlLoop(hal::DriveBus* bus, hal::Clock* clock,
+DiamondControlLoop::DiamondControlLoop(hal::DriveBus* bus, common::Clock* clock,
                                        const robots::DiamondModel& model,
                                        DiamondLoopOptions options)
     : bus_(bus), clock_(clock), model_(model), options_(options) {
@@ -152,7 +148,7 @@ std::string DiamondControlLoop::DriveFaults(DiamondLoopReport* report) const {
   std::ostringstream out;
   for (int i = 0; i < kDiamondJoints; ++i) {
     const hal::DriveStatus st = drives_[i]->status();
-    if (drives_[i]->lifecycle() != hal::DeviceLifecycle::kFault &&
+    if (drives_[i]->lifecycle() != common::DeviceLifecycle::kFault &&
         st.fault_source == hal::DriveFaultSource::kNone) {
       continue;
     }
@@ -171,8 +167,8 @@ void DiamondControlLoop::HoldAndSettle(Eigen::Vector2d* q_command) {
   // Brakes the commanded motion at stop_deceleration (the stopping distance the limit check
   // allowed for), then holds the set-point for a few cycles so that the drives arrive.
   const double dt = options_.cycle_period_s;
-  const hal::Duration period = Seconds(dt);
-  hal::Duration next = clock_->Now();
+  const common::Duration period = common::FromSeconds(dt);
+  common::Duration next = clock_->Now();
   Eigen::Vector2d v = Eigen::Vector2d::Zero();
   for (int i = 0; i < kDiamondJoints; ++i) v[i] = drives_[i]->status().velocity;
   const int max_cycles = static_cast<int>(1.0 / dt) + 1;
@@ -193,11 +189,11 @@ void DiamondControlLoop::SafeState(DiamondLoopReport* report) {
   for (hal::MotorDrive* d : drives_) {
     std::error_code ec;
     if (options_.stop_action == DiamondStopAction::kDisable) {
-      if (d->lifecycle() != hal::DeviceLifecycle::kFault &&
-          d->lifecycle() != hal::DeviceLifecycle::kUnconfigured) {
+      if (d->lifecycle() != common::DeviceLifecycle::kFault &&
+          d->lifecycle() != common::DeviceLifecycle::kUnconfigured) {
         ec = d->Disable();
       }
-    } else if (d->lifecycle() == hal::DeviceLifecycle::kActive) {
+    } else if (d->lifecycle() == common::DeviceLifecycle::kActive) {
       ec = d->QuickStop();
     }
     if (ec) {
@@ -208,9 +204,9 @@ void DiamondControlLoop::SafeState(DiamondLoopReport* report) {
   }
   // Keep cycling until both joints are at rest (at most 1 s): a drive receives its controlword
   // only with the cycles.
-  const hal::Duration period = Seconds(options_.cycle_period_s);
-  const hal::Duration end = clock_->Now() + Seconds(1.0);
-  for (hal::Duration next = clock_->Now() + period; clock_->Now() < end; next += period) {
+  const common::Duration period = common::FromSeconds(options_.cycle_period_s);
+  const common::Duration end = clock_->Now() + common::FromSeconds(1.0);
+  for (common::Duration next = clock_->Now() + period; clock_->Now() < end; next += period) {
     clock_->SleepUntil(next);
     bus_->Cycle();
     bool still = true;
@@ -227,7 +223,7 @@ DiamondLoopReport DiamondControlLoop::Run(
     return report;
   }
   const double dt = options_.cycle_period_s;
-  const hal::Duration period = Seconds(dt);
+  const common::Duration period = common::FromSeconds(dt);
   const size_t capacity = static_cast<size_t>(options_.timeout_s / dt) + 16;
   if (options_.keep_samples) report.samples.reserve(capacity);
   std::vector<double> periods, lateness, io, compute;
@@ -253,7 +249,7 @@ DiamondLoopReport DiamondControlLoop::Run(
     }
   }
 
-  const hal::Duration start = clock_->Now();
+  const common::Duration start = clock_->Now();
   law->Start(q_command, start);
   DeadlineGrid grid(clock_, period, start);
   int consecutive_timeouts = 0;
@@ -268,8 +264,8 @@ DiamondLoopReport DiamondControlLoop::Run(
 
   for (;;) {
     const DeadlineGrid::Wake wake = grid.Next();
-    const hal::Duration now = wake.time;
-    sample.time_s = ToSeconds(now - start);
+    const common::Duration now = wake.time;
+    sample.time_s = common::ToSeconds(now - start);
     sample.period_s = wake.period_s;
     sample.lateness_s = wake.lateness_s;
     if (!wake.first) record(&periods, sample.period_s);
@@ -278,8 +274,8 @@ DiamondLoopReport DiamondControlLoop::Run(
 
     // 1. The bus.
     const std::error_code cycle_error = bus_->Cycle();
-    const hal::Duration io_end = clock_->Now();
-    sample.io_s = ToSeconds(io_end - now);
+    const common::Duration io_end = clock_->Now();
+    sample.io_s = common::ToSeconds(io_end - now);
     record(&io, sample.io_s);
     bool faulted = false;
     if (cycle_error == hal::Errc::kTimeout) {
@@ -290,7 +286,7 @@ DiamondLoopReport DiamondControlLoop::Run(
       faulted = static_cast<bool>(cycle_error);
     }
     for (hal::MotorDrive* d : drives_) {
-      faulted = faulted || d->lifecycle() == hal::DeviceLifecycle::kFault;
+      faulted = faulted || d->lifecycle() == common::DeviceLifecycle::kFault;
     }
     if (faulted) {
       std::ostringstream m;
@@ -376,7 +372,7 @@ DiamondLoopReport DiamondControlLoop::Run(
     SetCommand(q_command);
     sample.q_command = q_command;
     sample.q_dot = q_dot;
-    record(&compute, ToSeconds(clock_->Now() - io_end));
+    record(&compute, common::ToSeconds(clock_->Now() - io_end));
     if (options_.keep_samples && report.samples.size() < capacity) report.samples.push_back(sample);
     if (observer) observer(sample);
 
@@ -386,7 +382,7 @@ DiamondLoopReport DiamondControlLoop::Run(
       break;
     }
   }
-  report.duration_s = ToSeconds(clock_->Now() - start);
+  report.duration_s = common::ToSeconds(clock_->Now() - start);
   for (int i = 0; i < kDiamondJoints; ++i) report.final_q[i] = drives_[i]->status().position;
   report.timing =
       ComputePeriodStatistics(dt, std::move(periods), std::move(lateness), std::move(io),

@@ -1,7 +1,7 @@
 #pragma once
 
 // The DIAMOND's fixed-rate control loop (issue 8, seed 001 §V): one cycle per period on a
-// hal::Clock over a hal::DriveBus of the two RS485 drives (joint i = bus.drives()[i]; Modbus RTU
+// common::Clock over a hal::DriveBus of the two RS485 drives (joint i = bus.drives()[i]; Modbus RTU
 // on the real robot and on DiamondWorld's pty), a DiamondLaw (diamond_laws.h) turning the joint
 // readings (and camera frames) into joint velocities, which the loop integrates into cyclic
 // synchronous position (CSP) set-points after its safety layer.
@@ -47,9 +47,9 @@
 #include <string>
 #include <vector>
 
+#include "common/clock.h"
 #include "control/common/fixed_rate.h"  // PeriodStatistics, DeadlineGrid
 #include "control/diamond/diamond_laws.h"
-#include "hal/common/clock.h"
 #include "hal/drive/motor_drive.h"
 #include "robots/diamond/diamond_model.h"
 
@@ -115,7 +115,7 @@ class DiamondControlLoop {
   // model: the limits and the forward kinematics for the safety checks (the controller's model).
   // All pointers must outlive the loop. Throws std::invalid_argument for invalid options, a bus
   // without two drives, an invalid model or null pointers, naming each.
-  DiamondControlLoop(hal::DriveBus* bus, hal::Clock* clock, const robots::DiamondModel& model,
+  DiamondControlLoop(hal::DriveBus* bus, common::Clock* clock, const robots::DiamondModel& model,
                      DiamondLoopOptions options = {});
 
   // Runs `law` until an outcome. observer (may be empty) sees each sample as it is made (tests
@@ -134,7 +134,7 @@ class DiamondControlLoop {
   std::string CheckLimits(const Eigen::Vector2d& q, robots::DiamondData* data) const;
 
   hal::DriveBus* bus_;
-  hal::Clock* clock_;
+  common::Clock* clock_;
   robots::DiamondModel model_;
   DiamondLoopOptions options_;
   std::vector<hal::MotorDrive*> drives_;

@@ -120,7 +120,7 @@ void ImageLegFeatureSource::Worker() {
     }
     if (!GrabAndProcess(std::chrono::milliseconds(options_.grab_timeout_ms), q, &frame)) {
       // A camera in fault answers at once: do not spin on it.
-      if (camera_->lifecycle() != hal::DeviceLifecycle::kActive) {
+      if (camera_->lifecycle() != common::DeviceLifecycle::kActive) {
         std::this_thread::sleep_for(std::chrono::milliseconds(20));
       }
       if (stop_) return;
@@ -131,7 +131,7 @@ void ImageLegFeatureSource::Worker() {
   }
 }
 
-bool ImageLegFeatureSource::Poll(hal::Duration now, LegFeatureFrame* frame) {
+bool ImageLegFeatureSource::Poll(common::Duration now, LegFeatureFrame* frame) {
   const Vector6d q = leg_lengths_();
   if (options_.asynchronous) {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -145,9 +145,9 @@ bool ImageLegFeatureSource::Poll(hal::Duration now, LegFeatureFrame* frame) {
     handed_over_ = published_.sequence;
     return true;
   }
-  if (period_ == hal::Duration(0)) {
+  if (period_ == common::Duration(0)) {
     const double fps = camera_->format().fps;
-    period_ = std::chrono::duration_cast<hal::Duration>(
+    period_ = std::chrono::duration_cast<common::Duration>(
         std::chrono::duration<double>(fps > 0 ? 1.0 / fps : 0.01));
   }
   // Not due yet: the next capture is a period after the last one (a little early is fine: the
@@ -184,7 +184,7 @@ bool ImageLegFeatureSource::GrabAndProcess(std::chrono::milliseconds timeout, co
                 &ImageLegFeatureCounters::format_errors);
     return false;
   }
-  vision::render::ImageView8 view;
+  vision::ImageView8 view;
   view.width = image_.width;
   view.height = image_.height;
   if (image_.format == hal::PixelFormat::kMono8) {

@@ -96,7 +96,7 @@ class ImageLegFeatureSource final : public LegFeatureSource {
                         LegLengthProvider leg_lengths, ImageLegFeatureOptions options = {});
   ~ImageLegFeatureSource() override;
 
-  bool Poll(hal::Duration now, LegFeatureFrame* frame) override;
+  bool Poll(common::Duration now, LegFeatureFrame* frame) override;
 
   // Copies (thread-safe in both modes): the observations of the last processed frame (the reasons
   // for the legs not seen), the platform pose its predictions were made at (nominal FK of the
@@ -120,9 +120,9 @@ class ImageLegFeatureSource final : public LegFeatureSource {
   Eigen::Isometry3d X_CB_;
   LegLengthProvider leg_lengths_;
   ImageLegFeatureOptions options_;
-  hal::Duration period_{0};
+  common::Duration period_{0};
   bool have_frame_ = false;
-  hal::Duration last_capture_{0};
+  common::Duration last_capture_{0};
   // Used by the thread that processes frames only.
   robots::HexapodData fk_data_;
   hal::Image image_;

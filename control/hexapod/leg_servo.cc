@@ -11,14 +11,10 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/so3.h"
+
 namespace kinevis::control {
 namespace {
-
-Eigen::Matrix3d Skew(const Eigen::Vector3d& a) {
-  Eigen::Matrix3d s;
-  s << 0.0, -a.z(), a.y(), a.z(), 0.0, -a.x(), -a.y(), a.x(), 0.0;
-  return s;
-}
 
 bool IsUnit(const Eigen::Vector3d& u) { return u.allFinite() && std::abs(u.norm() - 1.0) <= 1e-6; }
 
@@ -35,7 +31,7 @@ Matrix36d LegDirectionInteractionMatrixAtCameraOrigin(const Eigen::Vector3d& p_C
   const Eigen::Matrix3d P = (Eigen::Matrix3d::Identity() - u_C * u_C.transpose()) / q;
   Matrix36d L;
   L.leftCols<3>() = P;
-  L.rightCols<3>() = -P * Skew(p_C_A + q * u_C);
+  L.rightCols<3>() = -P * common::Skew(p_C_A + q * u_C);
   return L;
 }
 

@@ -10,44 +10,20 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/clock.h"
+#include "common/config_error.h"
 #include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
 #include "vision/plot/line_plot.h"
 
 namespace kinevis::control {
-namespace {
-
-hal::Duration Seconds(double s) {
-  return std::chrono::duration_cast<hal::Duration>(std::chrono::duration<double>(s));
-}
-double ToSeconds(hal::Duration d) { return std::chrono::duration<double>(d).count(); }
-
-class Problems {
- public:
-  void Add(const std::string& field, double value, const char* rule) {
-    std::ostringstream out;
-    out << (text_.empty() ? "" : "; ") << field << ": " << rule << ", got " << value;
-    text_ += out.str();
-  }
-  void Positive(const std::string& field, double v) {
-    if (!(std::isfinite(v) && v > 0)) Add(field, v, "must be finite and > 0");
-  }
-  void NonNegative(const std::string& field, double v) {
-    if (!(std::isfinite(v) && v >= 0)) Add(field, v, "must be finite and >= 0");
-  }
-  const std::string& text() const { return text_; }
-
- private:
-  std::string text_;
-};
-
-}  // namespace
+namespace {}  // namespace
 
 std::string GroundTruthFeatureOptions::Validate() const {
-  Problems p;
+  common::Problems p;
   p.Positive("fps", fps);
   p.NonNegative("noise_sigma", noise_sigma);
-  return p.text();
+  return p.Message();
 }
 
 GroundTruthLegFeatureSource::GroundTruthLegFeatureSource(robots::HexapodModel true_model,
@@ -64,14 +40,14 @@ GroundTruthLegFeatureSource::GroundTruthLegFeatureSource(robots::HexapodModel tr
   if (!message.empty()) throw std::invalid_argument("GroundTruthLegFeatureSource: " + message);
 }
 
-bool GroundTruthLegFeatureSource::Poll(hal::Duration now, LegFeatureFrame* frame) {
+bool GroundTruthLegFeatureSource::Poll(common::Duration now, LegFeatureFrame* frame) {
   if (!started_) {
     next_frame_ = now;
     started_ = true;
   }
   if (now < next_frame_) return false;
   // The camera keeps its own rate whatever the loop does; frames missed while paused are lost.
-  const hal::Duration period = Seconds(1.0 / options_.fps);
+  const common::Duration period = common::FromSeconds(1.0 / options_.fps);
   while (next_frame_ <= now) next_frame_ += period;
   if (paused_) return false;
   robots::InverseKinematics(model_, pose_(), &data_);
@@ -95,7 +71,7 @@ void GroundTruthLegFeatureSource::SetLegHidden(int leg, bool hidden) {
 void GroundTruthLegFeatureSource::SetPaused(bool paused) { paused_ = paused; }
 
 std::string ServoLoopOptions::Validate() const {
-  Problems p;
+  common::Problems p;
   p.Positive("cycle_period_s", cycle_period_s);
   p.Positive("max_leg_velocity", max_leg_velocity);
   p.NonNegative("stroke_margin", stroke_margin);
@@ -113,7 +89,7 @@ std::string ServoLoopOptions::Validate() const {
   if (max_consecutive_cycle_timeouts < 0) {
     p.Add("max_consecutive_cycle_timeouts", max_consecutive_cycle_timeouts, "must be >= 0");
   }
-  return p.text();
+  return p.Message();
 }
 
 const char* ToString(ServoLoopState state) {
@@ -150,7 +126,7 @@ const char* ToString(ServoLoopOutcome outcome) {
   return "?";
 }
 
-ServoLoop::ServoLoop(hal::DriveBus* bus, hal::Clock* clock, LegFeatureSource* source,
+ServoLoop::ServoLoop(hal::DriveBus* bus, common::Clock* clock, LegFeatureSource* source,
                      const robots::HexapodModel& model, LegServo* law, ServoLoopOptions options)
     : bus_(bus), clock_(clock), source_(source), model_(model), law_(law), options_(options) {
   std::string message = options.Validate();
@@ -184,9 +160,9 @@ void ServoLoop::SetRates(const Vector6d& q_dot, Vector6d* s_target) {
 }
 
 void ServoLoop::StopAndSettle(Vector6d* s_target) {
-  const hal::Duration period = Seconds(options_.cycle_period_s);
-  const hal::Duration end = clock_->Now() + Seconds(1.0);
-  hal::Duration next = clock_->Now() + period;
+  const common::Duration period = common::FromSeconds(options_.cycle_period_s);
+  const common::Duration end = clock_->Now() + common::FromSeconds(1.0);
+  common::Duration next = clock_->Now() + period;
   SetRates(Vector6d::Zero(), s_target);
   while (clock_->Now() < end) {
     clock_->SleepUntil(next);
@@ -203,7 +179,7 @@ void ServoLoop::StopAllOnFault(ServoLoopReport* report) {
   std::ostringstream out;
   for (int j = 0; j < kHexapodLegs; ++j) {
     const hal::DriveStatus st = drives_[j]->status();
-    if (drives_[j]->lifecycle() != hal::DeviceLifecycle::kFault &&
+    if (drives_[j]->lifecycle() != common::DeviceLifecycle::kFault &&
         st.fault_source == hal::DriveFaultSource::kNone) {
       continue;
     }
@@ -223,15 +199,15 @@ void ServoLoop::StopAllOnFault(ServoLoopReport* report) {
   for (hal::MotorDrive* d : drives_) {
     std::error_code ec;
     if (options_.stop_action == StopAction::kDisable) {
-      if (d->lifecycle() != hal::DeviceLifecycle::kFault) ec = d->Disable();
-    } else if (d->lifecycle() == hal::DeviceLifecycle::kActive) {
+      if (d->lifecycle() != common::DeviceLifecycle::kFault) ec = d->Disable();
+    } else if (d->lifecycle() == common::DeviceLifecycle::kActive) {
       ec = d->QuickStop();
     }
     if (ec) spdlog::warn("servo loop: stopping {} failed: {}", d->name(), ec.message());
   }
-  const hal::Duration period = Seconds(options_.cycle_period_s);
-  const hal::Duration end = clock_->Now() + Seconds(1.0);
-  for (hal::Duration next = clock_->Now() + period; clock_->Now() < end; next += period) {
+  const common::Duration period = common::FromSeconds(options_.cycle_period_s);
+  const common::Duration end = clock_->Now() + common::FromSeconds(1.0);
+  for (common::Duration next = clock_->Now() + period; clock_->Now() < end; next += period) {
     clock_->SleepUntil(next);
     bus_->Cycle();  // keeps reporting the fault; the stop is what matters now
     bool still = true;
@@ -244,7 +220,7 @@ void ServoLoop::StopAllOnFault(ServoLoopReport* report) {
 ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>& observer) {
   ServoLoopReport report;
   const double period_s = options_.cycle_period_s;
-  const hal::Duration period = Seconds(period_s);
+  const common::Duration period = common::FromSeconds(period_s);
   report.samples.reserve(static_cast<size_t>(options_.timeout_s / period_s) + 16);
   law_->Reset();
 
@@ -268,16 +244,16 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
     }
   }
 
-  const hal::Duration start = clock_->Now();
-  hal::Duration next = start;
-  hal::Duration last_frame_time = start;
+  const common::Duration start = clock_->Now();
+  common::Duration next = start;
+  common::Duration last_frame_time = start;
   bool have_frame = false;
   double converged_since = -1;
   bool converged_by_error = true;
   int consecutive_timeouts = 0;
   Vector6d filtered_displacement = Vector6d::Zero();
   bool have_displacement = false;
-  hal::Duration last_displacement_time = start;
+  common::Duration last_displacement_time = start;
   LegFeatureFrame frame;
   Vector6d q_dot_law = Vector6d::Zero();  // held between frames
   ServoLoopSample sample;
@@ -288,8 +264,8 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
   for (;;) {
     next += period;
     clock_->SleepUntil(next);
-    const hal::Duration now = clock_->Now();
-    const double t = ToSeconds(now - start);
+    const common::Duration now = clock_->Now();
+    const double t = common::ToSeconds(now - start);
     ++report.cycles;
 
     // 1. The bus: a fault of any drive stops all six. A cycle whose answers did not all come in
@@ -305,7 +281,7 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
       faulted = static_cast<bool>(cycle_error);
     }
     for (hal::MotorDrive* d : drives_) {
-      faulted = faulted || d->lifecycle() == hal::DeviceLifecycle::kFault;
+      faulted = faulted || d->lifecycle() == common::DeviceLifecycle::kFault;
     }
     if (faulted) {
       report.outcome = ServoLoopOutcome::kDriveFault;
@@ -355,7 +331,7 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
       // The remaining displacement of one frame carries the features' noise: it is judged
       // after a first-order low-pass over the frames (time constant convergence_filter_s).
       if (r.ok()) {
-        const double dt = have_displacement ? ToSeconds(now - last_displacement_time) : 0.0;
+        const double dt = have_displacement ? common::ToSeconds(now - last_displacement_time) : 0.0;
         const double a = have_displacement && options_.convergence_filter_s > 0
                              ? 1.0 - std::exp(-dt / options_.convergence_filter_s)
                              : 1.0;
@@ -380,7 +356,7 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
     } else if (!have_frame) {
       sample.state = ServoLoopState::kWaitFirstFrame;
     }
-    if (have_frame && ToSeconds(now - last_frame_time) > options_.stale_camera_timeout_s) {
+    if (have_frame && common::ToSeconds(now - last_frame_time) > options_.stale_camera_timeout_s) {
       sample.state = ServoLoopState::kHoldStaleCamera;
       q_dot_law.setZero();
       converged_since = -1;
@@ -461,7 +437,7 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
   }
 
   if (report.outcome != ServoLoopOutcome::kDriveFault) StopAndSettle(&s_target);
-  report.duration_s = ToSeconds(clock_->Now() - start);
+  report.duration_s = common::ToSeconds(clock_->Now() - start);
   report.final_error_norm = sample.error_norm;
   Vector6d s;
   for (int j = 0; j < kHexapodLegs; ++j) s[j] = drives_[j]->status().position;

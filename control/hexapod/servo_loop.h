@@ -1,6 +1,6 @@
 #pragma once
 
-// The hexapod leg-direction servo loop (issue 6, seed 002 §V-B): runs on a hal::Clock at the
+// The hexapod leg-direction servo loop (issue 6, seed 002 §V-B): runs on a common::Clock at the
 // drive cycle over a hal::DriveBus of six drives (leg j = drive j of bus.drives()), takes leg
 // directions from a LegFeatureSource at the camera's own rate, runs the LegServo law once per
 // camera frame and holds the last leg rates between frames, and commands them in cyclic
@@ -38,8 +38,8 @@
 #include <string>
 #include <vector>
 
+#include "common/clock.h"
 #include "control/hexapod/leg_servo.h"
-#include "hal/common/clock.h"
 #include "hal/drive/motor_drive.h"
 #include "robots/hexapod/hexapod_model.h"
 
@@ -47,8 +47,8 @@ namespace kinevis::control {
 
 // One camera frame's features.
 struct LegFeatureFrame {
-  hal::Duration timestamp{0};  // when the image was taken (loop clock)
-  LegDirections u_C{};         // unit leg directions in C (valid where visible)
+  common::Duration timestamp{0};  // when the image was taken (loop clock)
+  LegDirections u_C{};            // unit leg directions in C (valid where visible)
   LegMask visible{};
   uint64_t sequence = 0;
 };
@@ -59,7 +59,7 @@ class LegFeatureSource {
   virtual ~LegFeatureSource() = default;
   // Called once per loop cycle at `now`; returns true and fills *frame when a new camera frame
   // is available (its features), false when none is due yet. Must not block for long.
-  virtual bool Poll(hal::Duration now, LegFeatureFrame* frame) = 0;
+  virtual bool Poll(common::Duration now, LegFeatureFrame* frame) = 0;
 };
 
 struct GroundTruthFeatureOptions {
@@ -78,7 +78,7 @@ class GroundTruthLegFeatureSource final : public LegFeatureSource {
   // Throws std::invalid_argument with options.Validate()'s message or for an empty provider.
   GroundTruthLegFeatureSource(robots::HexapodModel true_model, const Eigen::Isometry3d& X_CB,
                               PoseProvider pose, GroundTruthFeatureOptions options = {});
-  bool Poll(hal::Duration now, LegFeatureFrame* frame) override;
+  bool Poll(common::Duration now, LegFeatureFrame* frame) override;
   void SetLegHidden(int leg, bool hidden);
   void SetPaused(bool paused);
   uint64_t frames() const { return sequence_; }
@@ -94,7 +94,7 @@ class GroundTruthLegFeatureSource final : public LegFeatureSource {
   LegMask hidden_{};
   bool paused_ = false;
   bool started_ = false;
-  hal::Duration next_frame_{0};
+  common::Duration next_frame_{0};
   uint64_t sequence_ = 0;
 };
 
@@ -183,7 +183,7 @@ class ServoLoop {
   // bus's clock (SleepUntil paces the cycles). model: q0 and the strokes (the nominal model the
   // host knows). law: with its desired features set. All must outlive the loop. Throws
   // std::invalid_argument for invalid options, a bus without six drives or null pointers.
-  ServoLoop(hal::DriveBus* bus, hal::Clock* clock, LegFeatureSource* source,
+  ServoLoop(hal::DriveBus* bus, common::Clock* clock, LegFeatureSource* source,
             const robots::HexapodModel& model, LegServo* law, ServoLoopOptions options = {});
 
   // Runs until an outcome. observer (may be empty) sees every sample as it is made (tests
@@ -196,7 +196,7 @@ class ServoLoop {
   void StopAllOnFault(ServoLoopReport* report);
 
   hal::DriveBus* bus_;
-  hal::Clock* clock_;
+  common::Clock* clock_;
   LegFeatureSource* source_;
   robots::HexapodModel model_;
   LegServo* law_;

@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "common/so3.h"
+
 namespace kinevis::control {
 namespace {
 
@@ -11,12 +13,6 @@ using robots::Vector5d;
 using Matrix35 = Eigen::Matrix<double, 3, 5>;
 using Matrix25 = Eigen::Matrix<double, 2, 5>;
 using Matrix5d = Eigen::Matrix<double, 5, 5>;
-
-Eigen::Matrix3d Skew(const Eigen::Vector3d& a) {
-  Eigen::Matrix3d s;
-  s << 0.0, -a.z(), a.y(), a.z(), 0.0, -a.x(), -a.y(), a.x(), 0.0;
-  return s;
-}
 
 double WrapToPi(double x) {
   const double y = std::remainder(x, 2.0 * M_PI);
@@ -68,7 +64,7 @@ void Evaluate(const robots::Weld5Model& model, const Vector5d& q, const Eigen::V
   const Eigen::Vector3d eps = c.norm() > 1e-12 ? Eigen::Vector3d(e->angle * c.normalized())
                                                : Eigen::Vector3d(e->angle * e1);
   e->r_a = Eigen::Vector2d(e1.dot(eps), e2.dot(eps));
-  e->J_w = data.J.topRows<3>() - d * Skew(u) * data.J.bottomRows<3>();
+  e->J_w = data.J.topRows<3>() - d * common::Skew(u) * data.J.bottomRows<3>();
   e->J_a.row(0) = e1.transpose() * data.J.bottomRows<3>();
   e->J_a.row(1) = e2.transpose() * data.J.bottomRows<3>();
   e->cost = e->r_w.squaredNorm() + kAxisWeight * kAxisWeight * e->r_a.squaredNorm();
@@ -174,7 +170,7 @@ Eigen::Vector3d WirePoint(const robots::Weld5Model& model, const robots::Vector5
   robots::Weld5Data data;
   robots::Weld5ForwardKinematics(model, q, &data);
   if (J_w != nullptr) {
-    *J_w = data.J.topRows<3>() - d * Skew(data.u_0T) * data.J.bottomRows<3>();
+    *J_w = data.J.topRows<3>() - d * common::Skew(data.u_0T) * data.J.bottomRows<3>();
   }
   return data.p_0T + d * data.u_0T;
 }

@@ -13,12 +13,12 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/units.h"
 #include "vision/plot/line_plot.h"
 
 namespace kinevis::control {
 namespace {
 
-constexpr double kDeg = M_PI / 180.0;
 constexpr int kFormatVersion = 1;
 const char* const kFormat = "kinevis-weld-plan";
 
@@ -58,8 +58,8 @@ const char* const kTrajectoryColumns[] = {"theta1_deg", "theta2_deg", "pz3_mm", 
 constexpr int kTrajectoryColumnCount = sizeof(kTrajectoryColumns) / sizeof(kTrajectoryColumns[0]);
 
 // Joint i in file units (deg, or mm for pz3).
-double JointToFile(int i, double q) { return i == 2 ? q * 1e3 : q / kDeg; }
-double JointFromFile(int i, double v) { return i == 2 ? v * 1e-3 : v * kDeg; }
+double JointToFile(int i, double q) { return i == 2 ? q * 1e3 : q / common::kDeg; }
+double JointFromFile(int i, double v) { return i == 2 ? v * 1e-3 : v * common::kDeg; }
 
 // Collects every missing or bad key of a file, then throws once.
 class Reader {
@@ -150,7 +150,7 @@ void WriteWeldPlan(const std::string& path, const WeldPlan& plan,
   if (std::isnan(o.raster_angle)) {
     out << "auto";
   } else {
-    out << o.raster_angle / kDeg;
+    out << o.raster_angle / common::kDeg;
   }
   out << YAML::Key << "alternate_layers" << YAML::Value << o.alternate_layers;
   out << YAML::Key << "allow_reversal" << YAML::Value << o.allow_reversal;
@@ -162,7 +162,7 @@ void WriteWeldPlan(const std::string& path, const WeldPlan& plan,
   out << YAML::Key << "lead_out_mm" << YAML::Value << o.lead_out * 1e3;
   out << YAML::Key << "point_spacing_mm" << YAML::Value << o.point_spacing * 1e3;
   out << YAML::Key << "transit_spacing_mm" << YAML::Value << o.transit_spacing * 1e3;
-  out << YAML::Key << "max_torch_tilt_deg" << YAML::Value << o.ik.max_tilt / kDeg;
+  out << YAML::Key << "max_torch_tilt_deg" << YAML::Value << o.ik.max_tilt / common::kDeg;
   out << YAML::Key << "air_joint_speed_fraction" << YAML::Value << o.air_joint_speed_fraction;
   out << YAML::Key << "max_segment_duration_s" << YAML::Value << o.max_segment_duration;
   out << YAML::EndMap;
@@ -212,8 +212,8 @@ void WriteWeldPlan(const std::string& path, const WeldPlan& plan,
   out << YAML::Key << "arc_time_s" << YAML::Value << s.arc_time;
   out << YAML::Key << "total_time_s" << YAML::Value << s.total_time;
   out << YAML::Key << "max_joint_speed_ratio" << YAML::Value << s.max_joint_speed_ratio;
-  out << YAML::Key << "max_tilt_deg" << YAML::Value << s.max_tilt / kDeg;
-  out << YAML::Key << "mean_tilt_deg" << YAML::Value << s.mean_tilt / kDeg;
+  out << YAML::Key << "max_tilt_deg" << YAML::Value << s.max_tilt / common::kDeg;
+  out << YAML::Key << "mean_tilt_deg" << YAML::Value << s.mean_tilt / common::kDeg;
   out << YAML::Key << "max_interpolation_error_mm" << YAML::Value
       << s.max_interpolation_error * 1e3;
   out << YAML::Key << "speed_limited_segments" << YAML::Value << s.speed_limited_segments;
@@ -277,7 +277,7 @@ void WriteWeldPlan(const std::string& path, const WeldPlan& plan,
           out << YAML::Flow << YAML::BeginSeq << ToString(p.kind) << p.p_0T.x() * 1e3
               << p.p_0T.y() * 1e3 << p.p_0T.z() * 1e3 << p.u_0T.x() << p.u_0T.y() << p.u_0T.z()
               << p.p_0S.x() * 1e3 << p.p_0S.y() * 1e3 << p.p_0S.z() * 1e3 << p.uv_R.x() * 1e3
-              << p.uv_R.y() * 1e3 << p.depth * 1e3 << p.stand_off * 1e3 << p.tilt / kDeg
+              << p.uv_R.y() * 1e3 << p.depth * 1e3 << p.stand_off * 1e3 << p.tilt / common::kDeg
               << (p.arc_on ? 1 : 0) << p.speed * 1e3 << robots::ToString(p.ik);
           for (int i = 0; i < robots::kWeld5Joints; ++i) out << JointToFile(i, p.q(i));
           out << YAML::EndSeq;
@@ -371,7 +371,7 @@ WeldPlanFile ReadWeldPlan(const std::string& path) {
     if (angle == "auto") {
       o.raster_angle = std::nan("");
     } else {
-      o.raster_angle = rd.Number(on, "raster_angle_deg", w) * kDeg;
+      o.raster_angle = rd.Number(on, "raster_angle_deg", w) * common::kDeg;
     }
     o.alternate_layers = rd.Get<bool>(on, "alternate_layers", w, true);
     o.allow_reversal = rd.Get<bool>(on, "allow_reversal", w, true);
@@ -383,7 +383,7 @@ WeldPlanFile ReadWeldPlan(const std::string& path) {
     o.lead_out = rd.Number(on, "lead_out_mm", w) * 1e-3;
     o.point_spacing = rd.Number(on, "point_spacing_mm", w) * 1e-3;
     o.transit_spacing = rd.Number(on, "transit_spacing_mm", w) * 1e-3;
-    o.ik.max_tilt = rd.Number(on, "max_torch_tilt_deg", w) * kDeg;
+    o.ik.max_tilt = rd.Number(on, "max_torch_tilt_deg", w) * common::kDeg;
     o.air_joint_speed_fraction = rd.Number(on, "air_joint_speed_fraction", w);
     o.max_segment_duration = rd.Number(on, "max_segment_duration_s", w);
   }
@@ -464,8 +464,8 @@ WeldPlanFile ReadWeldPlan(const std::string& path) {
     s.arc_time = rd.Number(sn, "arc_time_s", p);
     s.total_time = rd.Number(sn, "total_time_s", p);
     s.max_joint_speed_ratio = rd.Number(sn, "max_joint_speed_ratio", p);
-    s.max_tilt = rd.Number(sn, "max_tilt_deg", p) * kDeg;
-    s.mean_tilt = rd.Number(sn, "mean_tilt_deg", p) * kDeg;
+    s.max_tilt = rd.Number(sn, "max_tilt_deg", p) * common::kDeg;
+    s.mean_tilt = rd.Number(sn, "mean_tilt_deg", p) * common::kDeg;
     s.max_interpolation_error = rd.Number(sn, "max_interpolation_error_mm", p) * 1e-3;
     s.speed_limited_segments = rd.Get<int>(sn, "speed_limited_segments", p, 0);
     s.problems = rd.Get<std::vector<std::string>>(sn, "problems", p, {});
@@ -559,7 +559,7 @@ WeldPlanFile ReadWeldPlan(const std::string& path) {
             q.uv_R = Eigen::Vector2d(num(10), num(11)) * 1e-3;
             q.depth = num(12) * 1e-3;
             q.stand_off = num(13) * 1e-3;
-            q.tilt = num(14) * kDeg;
+            q.tilt = num(14) * common::kDeg;
             q.arc_on = num(15) != 0.0;
             q.speed = num(16) * 1e-3;
             bool ik_ok = false;

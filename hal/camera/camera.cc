@@ -57,10 +57,11 @@ void SaveImage(const Image& image, const std::string& path) {
       static_cast<size_t>(image.width) * static_cast<size_t>(BytesPerPixel(image.format));
   if (image.width <= 0 || image.height <= 0 || image.stride < row_bytes ||
       image.data.size() < image.stride * static_cast<size_t>(image.height)) {
-    throw ConfigError("save image \"" + path + "\": the image is empty or inconsistent (" +
-                      std::to_string(image.width) + "x" + std::to_string(image.height) + " " +
-                      ToString(image.format) + ", stride " + std::to_string(image.stride) + ", " +
-                      std::to_string(image.data.size()) + " bytes)");
+    throw common::ConfigError("save image \"" + path + "\": the image is empty or inconsistent (" +
+                              std::to_string(image.width) + "x" + std::to_string(image.height) +
+                              " " + ToString(image.format) + ", stride " +
+                              std::to_string(image.stride) + ", " +
+                              std::to_string(image.data.size()) + " bytes)");
   }
   int type = CV_8UC1;
   switch (image.format) {

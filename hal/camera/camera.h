@@ -26,7 +26,7 @@
 #include <system_error>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/drive/motor_drive.h"
 
 namespace kinevis::hal {
@@ -55,9 +55,9 @@ struct Image {
   PixelFormat format = PixelFormat::kMono8;
   size_t stride = 0;          // bytes per row
   std::vector<uint8_t> data;  // height * stride bytes
-  // When the frame was captured, on the camera's hal::Clock (for a recorded file: its position in
-  // the recording, see docs/cameras.md).
-  Duration timestamp{0};
+  // When the frame was captured, on the camera's common::Clock (for a recorded file: its position
+  // in the recording, see docs/cameras.md).
+  common::Duration timestamp{0};
   // Number of the frame in the stream; strictly increasing, gaps where frames were lost.
   uint64_t frame_id = 0;
   // The calibration the pixels belong to (empty: none declared).
@@ -112,7 +112,7 @@ class Camera {
   // The source string the camera was opened with ("v4l2:/dev/video0"): in every log line and
   // error.
   virtual const std::string& name() const = 0;
-  virtual DeviceLifecycle lifecycle() const = 0;
+  virtual common::DeviceLifecycle lifecycle() const = 0;
 
   // Set-up: opens the device, file or render source and learns the format -> configured.
   // Throws HalError naming the source, the operation and the cause (no such device or file, no

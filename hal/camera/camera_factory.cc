@@ -19,10 +19,10 @@ constexpr int kMaxSide = 16384;
 constexpr double kMaxFps = 10'000.0;
 
 // Collects every problem with one source string, then throws them together.
-class Problems : public ConfigProblems {
+class Problems : public common::Problems {
  public:
   explicit Problems(std::string_view text)
-      : ConfigProblems("camera source \"" + std::string(text) + "\"") {}
+      : common::Problems("camera source \"" + std::string(text) + "\"") {}
 };
 
 bool ParseInt(std::string_view s, int min, int max, int* out) {
@@ -229,7 +229,7 @@ CameraSourceSpec ParseCameraSource(std::string_view source) {
   return spec;
 }
 
-std::unique_ptr<Camera> OpenCamera(std::string_view source, Clock& clock) {
+std::unique_ptr<Camera> OpenCamera(std::string_view source, common::Clock& clock) {
   if (source.substr(0, 4) == "net:") {
     // Frames, ids and time stamps come from the server; timeouts on a socket are wall time, so
     // `clock` has no part in a network camera.

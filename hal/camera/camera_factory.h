@@ -11,15 +11,15 @@
 //                                                  parsed by ParseNetCameraSource, net_camera.h)
 //
 // PIX is mono8, bgr8, rgb8 or mono16. Paths and globs cannot contain ','.
-// The parser throws hal::ConfigError naming the source string, every bad field and its value.
+// The parser throws common::ConfigError naming the source string, every bad field and its value.
 
 #include <memory>
 #include <optional>
 #include <string>
 #include <string_view>
 
+#include "common/clock.h"
 #include "hal/camera/camera.h"
-#include "hal/common/clock.h"
 
 namespace kinevis::hal {
 
@@ -49,6 +49,7 @@ CameraSourceSpec ParseCameraSource(std::string_view source);
 // camera returned is configured; call Start() to stream. `clock` must outlive the camera.
 // Throws ConfigError for a bad string (exit code 2 in the CLI) and HalError when the source
 // cannot be opened (exit code 3).
-std::unique_ptr<Camera> OpenCamera(std::string_view source, Clock& clock = SteadyClock::Instance());
+std::unique_ptr<Camera> OpenCamera(std::string_view source,
+                                   common::Clock& clock = common::SteadyClock::Instance());
 
 }  // namespace kinevis::hal

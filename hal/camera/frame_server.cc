@@ -184,8 +184,8 @@ FrameSource CameraFrameSource(Camera& camera, std::chrono::milliseconds timeout)
 }
 
 FrameSource RenderFrameSource(const CameraFormat& format, RenderFn render,
-                              std::string intrinsics_id, Clock& clock) {
-  ConfigProblems problems("render frame source");
+                              std::string intrinsics_id, common::Clock& clock) {
+  common::Problems problems("render frame source");
   if (format.width < 1 || format.width > static_cast<int>(kMaxFrameSide)) {
     problems.Add("width " + std::to_string(format.width) + " is not in 1..16384");
   }
@@ -201,7 +201,7 @@ FrameSource RenderFrameSource(const CameraFormat& format, RenderFn render,
   return [format, render = std::move(render), id = std::move(intrinsics_id), &clock,
           next = uint64_t{0}](Image* image) mutable -> std::error_code {
     image->Resize(format.width, format.height, format.pixel_format);
-    const Duration time = clock.Now();
+    const common::Duration time = clock.Now();
     const uint64_t frame_id = next++;
     const std::error_code ec = render(frame_id, time, image);
     if (ec) return ec;
@@ -491,7 +491,7 @@ void FrameServer::Stop() {
 std::unique_ptr<FrameServer> FrameServer::Listen(FrameSource source,
                                                  const FrameServerOptions& options) {
   const std::string where = HostPort(options.host, options.port);
-  ConfigProblems problems("frame server on " + where);
+  common::Problems problems("frame server on " + where);
   if (!source) problems.Add("frame source is empty");
   if (options.port < 0 || options.port > 65535) {
     problems.Add("port " + std::to_string(options.port) + " is not in 0..65535");

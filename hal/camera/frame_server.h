@@ -26,9 +26,9 @@
 #include <string>
 #include <system_error>
 
+#include "common/clock.h"
 #include "hal/camera/camera.h"
 #include "hal/camera/sim_camera.h"
-#include "hal/common/clock.h"
 
 namespace kinevis::hal {
 
@@ -103,7 +103,8 @@ FrameSource CameraFrameSource(Camera& camera, std::chrono::milliseconds timeout)
 // `intrinsics_id`. `clock` must outlive the server. Throws ConfigError when the format's size is
 // not positive or `render` is empty.
 FrameSource RenderFrameSource(const CameraFormat& format, RenderFn render,
-                              std::string intrinsics_id, Clock& clock = SteadyClock::Instance());
+                              std::string intrinsics_id,
+                              common::Clock& clock = common::SteadyClock::Instance());
 
 struct FrameServerOptions {
   // Address to listen on: numeric or a name ("127.0.0.1", "::1", "localhost"; "0.0.0.0" for

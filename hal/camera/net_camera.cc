@@ -59,7 +59,7 @@ std::string Hex32(uint32_t v) {
 }  // namespace
 
 NetCameraOptions ParseNetCameraSource(std::string_view source) {
-  ConfigProblems problems("camera source \"" + std::string(source) + "\"");
+  common::Problems problems("camera source \"" + std::string(source) + "\"");
   NetCameraOptions options;
   const size_t colon = source.find(':');
   if (colon == std::string_view::npos || source.substr(0, colon) != "net") {
@@ -136,7 +136,7 @@ NetCameraOptions ParseNetCameraSource(std::string_view source) {
 
 NetCamera::NetCamera(std::string name, NetCameraOptions options)
     : name_(std::move(name)), options_(std::move(options)) {
-  ConfigProblems problems("camera source \"" + name_ + "\"");
+  common::Problems problems("camera source \"" + name_ + "\"");
   if (options_.host.empty()) problems.Add("host is empty");
   if (options_.port < 1 || options_.port > 65535) {
     problems.Add("port " + std::to_string(options_.port) + " is not in 1..65535");
@@ -322,12 +322,13 @@ void NetCamera::Fault(const std::string& cause) {
   }
   spdlog::error("{}", message);
   CloseSocket();
-  lifecycle_ = DeviceLifecycle::kFault;
+  lifecycle_ = common::DeviceLifecycle::kFault;
 }
 
 void NetCamera::Open() {
-  const DeviceLifecycle state = lifecycle_.load();
-  if (state == DeviceLifecycle::kConfigured || state == DeviceLifecycle::kActive) return;
+  const common::DeviceLifecycle state = lifecycle_.load();
+  if (state == common::DeviceLifecycle::kConfigured || state == common::DeviceLifecycle::kActive)
+    return;
   CloseSocket();
   const auto deadline = SteadyTime::now() + std::chrono::milliseconds(options_.timeout_ms);
   auto fail = [&](const std::string& cause) {
@@ -377,30 +378,31 @@ void NetCamera::Open() {
                        : std::string(intrinsics_.data(), header_.intrinsics_id_bytes);
   next_min_frame_id_ = header_.frame_id + 1;
   delivered_any_ = false;
-  lifecycle_ = DeviceLifecycle::kConfigured;
+  lifecycle_ = common::DeviceLifecycle::kConfigured;
   spdlog::debug("{}: open, {}x{} {} at {} fps, intrinsics \"{}\"", name_, format.width,
                 format.height, ToString(format.pixel_format), format.fps, intrinsics_id_);
 }
 
 std::error_code NetCamera::Start() {
-  const DeviceLifecycle state = lifecycle_.load();
-  if (state == DeviceLifecycle::kActive) return {};
-  if (state != DeviceLifecycle::kConfigured) return Errc::kNotActive;
+  const common::DeviceLifecycle state = lifecycle_.load();
+  if (state == common::DeviceLifecycle::kActive) return {};
+  if (state != common::DeviceLifecycle::kConfigured) return Errc::kNotActive;
   // A frame asked for before Stop() is stale by now.
   if (in_flight_) discard_in_flight_ = true;
   delivered_any_ = false;
-  lifecycle_ = DeviceLifecycle::kActive;
+  lifecycle_ = common::DeviceLifecycle::kActive;
   return {};
 }
 
 void NetCamera::Stop() {
-  if (lifecycle_.load() == DeviceLifecycle::kActive) lifecycle_ = DeviceLifecycle::kConfigured;
+  if (lifecycle_.load() == common::DeviceLifecycle::kActive)
+    lifecycle_ = common::DeviceLifecycle::kConfigured;
 }
 
 std::error_code NetCamera::Grab(Image* out, std::chrono::milliseconds timeout) {
-  const DeviceLifecycle state = lifecycle_.load();
-  if (state == DeviceLifecycle::kFault) return Errc::kClosed;
-  if (state != DeviceLifecycle::kActive) return Errc::kNotActive;
+  const common::DeviceLifecycle state = lifecycle_.load();
+  if (state == common::DeviceLifecycle::kFault) return Errc::kClosed;
+  if (state != common::DeviceLifecycle::kActive) return Errc::kNotActive;
   const auto deadline = SteadyTime::now() + std::max(timeout, std::chrono::milliseconds(0));
   const auto link_timeout = std::chrono::milliseconds(options_.timeout_ms);
   while (true) {
@@ -478,7 +480,7 @@ std::error_code NetCamera::Grab(Image* out, std::chrono::milliseconds timeout) {
     for (size_t i = 0; i + 1 < payload; i += 2) std::swap(out->data[i], out->data[i + 1]);
   }
   out->frame_id = header_.frame_id;
-  out->timestamp = Duration(header_.timestamp_ns);
+  out->timestamp = common::Duration(header_.timestamp_ns);
   if (!options_.intrinsics_id.empty()) {
     out->intrinsics_id = intrinsics_id_;
   } else {

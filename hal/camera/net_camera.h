@@ -55,7 +55,7 @@ class NetCamera final : public Camera {
   NetCamera& operator=(const NetCamera&) = delete;
 
   const std::string& name() const override { return name_; }
-  DeviceLifecycle lifecycle() const override { return lifecycle_.load(); }
+  common::DeviceLifecycle lifecycle() const override { return lifecycle_.load(); }
 
   // Connects and reads one frame, whose header gives the format -> configured. Throws HalError
   // naming the source, "open" and the cause (cannot resolve, connection refused, no answer
@@ -102,7 +102,7 @@ class NetCamera final : public Camera {
 
   const std::string name_;
   const NetCameraOptions options_;
-  std::atomic<DeviceLifecycle> lifecycle_{DeviceLifecycle::kUnconfigured};
+  std::atomic<common::DeviceLifecycle> lifecycle_{common::DeviceLifecycle::kUnconfigured};
   mutable std::mutex mutex_;  // format_ and last_error_, read from any thread
   CameraFormat format_;
   std::string last_error_;

@@ -130,14 +130,14 @@ std::string SizeText(int width, int height) {
   return std::to_string(width) + "x" + std::to_string(height);
 }
 
-Duration SecondsToDuration(double s) { return Duration(std::llround(s * 1e9)); }
+common::Duration SecondsToDuration(double s) { return common::Duration(std::llround(s * 1e9)); }
 
 bool PlausibleFps(double fps) { return std::isfinite(fps) && fps > 0.0 && fps <= 10'000.0; }
 
 }  // namespace
 
 struct OpenCvCamera::Impl {
-  Impl(std::string n, OpenCvCameraOptions o, Clock& c)
+  Impl(std::string n, OpenCvCameraOptions o, common::Clock& c)
       : name(std::move(n)), options(std::move(o)), clock(c) {}
 
   // What one read of the device gave.
@@ -174,8 +174,8 @@ struct OpenCvCamera::Impl {
 
   const std::string name;
   const OpenCvCameraOptions options;
-  Clock& clock;
-  std::atomic<DeviceLifecycle> lifecycle{DeviceLifecycle::kUnconfigured};
+  common::Clock& clock;
+  std::atomic<common::DeviceLifecycle> lifecycle{common::DeviceLifecycle::kUnconfigured};
   AtomicCameraCounters counters;
 
   mutable std::mutex format_mutex;  // format is written by Open() and read from any thread
@@ -185,7 +185,7 @@ struct OpenCvCamera::Impl {
   int height = 0;
   PixelFormat pixel_format = PixelFormat::kBgr8;
   double fps = kDefaultFps;
-  Duration period{0};
+  common::Duration period{0};
 
   cv::VideoCapture capture;
   cv::Mat frame;              // the frame last read or decoded
@@ -194,12 +194,12 @@ struct OpenCvCamera::Impl {
   bool ended = false;         // end of a file or image sequence without loop
 
   // file: position in the recording
-  uint64_t pass_frames = 0;      // frames read in this pass
-  uint64_t frame_index = 0;      // index of `frame` in this pass
-  uint64_t id_offset = 0;        // frames of the earlier passes
-  Duration pass_offset{0};       // length of the earlier passes
-  Duration frame_time{0};        // position of `frame` in this pass
-  Duration last_stream_time{0};  // position of the last frame read in this pass
+  uint64_t pass_frames = 0;              // frames read in this pass
+  uint64_t frame_index = 0;              // index of `frame` in this pass
+  uint64_t id_offset = 0;                // frames of the earlier passes
+  common::Duration pass_offset{0};       // length of the earlier passes
+  common::Duration frame_time{0};        // position of `frame` in this pass
+  common::Duration last_stream_time{0};  // position of the last frame read in this pass
 
   // images
   std::vector<std::string> files;
@@ -210,7 +210,7 @@ struct OpenCvCamera::Impl {
   // v4l2
   uint64_t next_id = 0;
   bool have_last_stamp = false;
-  Duration last_stamp{0};
+  common::Duration last_stamp{0};
 
   // latest: the grabber thread reads into `back` and swaps it with `latest`.
   std::thread grabber;
@@ -235,8 +235,9 @@ void OpenCvCamera::Impl::SetFormat(int w, int h, PixelFormat p, double f) {
 }
 
 void OpenCvCamera::Impl::Open() {
-  const DeviceLifecycle state = lifecycle.load();
-  if (state == DeviceLifecycle::kConfigured || state == DeviceLifecycle::kActive) return;
+  const common::DeviceLifecycle state = lifecycle.load();
+  if (state == common::DeviceLifecycle::kConfigured || state == common::DeviceLifecycle::kActive)
+    return;
   Close();
   std::vector<std::string> problems;
   if (options.path.empty()) problems.push_back("the path is empty");
@@ -254,7 +255,7 @@ void OpenCvCamera::Impl::Open() {
   if (!problems.empty()) {
     std::string all = "camera source \"" + name + "\": ";
     for (size_t i = 0; i < problems.size(); ++i) all += (i > 0 ? "; " : "") + problems[i];
-    throw ConfigError(all);
+    throw common::ConfigError(all);
   }
   try {
     switch (options.kind) {
@@ -272,7 +273,7 @@ void OpenCvCamera::Impl::Open() {
     Close();
     throw;
   }
-  lifecycle = DeviceLifecycle::kConfigured;
+  lifecycle = common::DeviceLifecycle::kConfigured;
   spdlog::info(
       "{}: {} source open, {}x{} {} at {} fps{}", name, KindName(options.kind), width, height,
       ToString(pixel_format), fps,
@@ -387,20 +388,20 @@ void OpenCvCamera::Impl::Close() {
   have_pending = false;
   ended = false;
   pass_frames = frame_index = id_offset = 0;
-  pass_offset = frame_time = last_stream_time = Duration{0};
+  pass_offset = frame_time = last_stream_time = common::Duration{0};
   files.clear();
   next_file = 0;
   pass = 0;
   decoded_in_pass = false;
   next_id = 0;
   have_last_stamp = false;
-  last_stamp = Duration{0};
+  last_stamp = common::Duration{0};
 }
 
 std::error_code OpenCvCamera::Impl::Start() {
-  const DeviceLifecycle state = lifecycle.load();
-  if (state == DeviceLifecycle::kActive) return {};
-  if (state != DeviceLifecycle::kConfigured) return Errc::kNotActive;
+  const common::DeviceLifecycle state = lifecycle.load();
+  if (state == common::DeviceLifecycle::kActive) return {};
+  if (state != common::DeviceLifecycle::kConfigured) return Errc::kNotActive;
   if (options.latest) {
     {
       std::lock_guard<std::mutex> lock(latest_mutex);
@@ -410,7 +411,7 @@ std::error_code OpenCvCamera::Impl::Start() {
     }
     grabber = std::thread([this] { GrabberLoop(); });
   }
-  lifecycle = DeviceLifecycle::kActive;
+  lifecycle = common::DeviceLifecycle::kActive;
   return {};
 }
 
@@ -422,19 +423,20 @@ void OpenCvCamera::Impl::Stop() {
     }
     grabber.join();
   }
-  if (lifecycle.load() == DeviceLifecycle::kActive) lifecycle = DeviceLifecycle::kConfigured;
+  if (lifecycle.load() == common::DeviceLifecycle::kActive)
+    lifecycle = common::DeviceLifecycle::kConfigured;
 }
 
 std::error_code OpenCvCamera::Impl::Fault(const char* why) {
-  lifecycle = DeviceLifecycle::kFault;
+  lifecycle = common::DeviceLifecycle::kFault;
   spdlog::error("{}: {}; camera in fault", name, why);
   return Errc::kClosed;
 }
 
 std::error_code OpenCvCamera::Impl::Grab(Image* out, std::chrono::milliseconds timeout) {
-  const DeviceLifecycle state = lifecycle.load();
-  if (state == DeviceLifecycle::kFault) return Errc::kClosed;
-  if (state != DeviceLifecycle::kActive) return Errc::kNotActive;
+  const common::DeviceLifecycle state = lifecycle.load();
+  if (state == common::DeviceLifecycle::kFault) return Errc::kClosed;
+  if (state != common::DeviceLifecycle::kActive) return Errc::kNotActive;
   if (options.latest) return GrabLatest(out, timeout);
   const std::error_code ec =
       options.kind == Kind::kV4l2 ? GrabV4l2(out, timeout) : GrabRecorded(out);
@@ -453,7 +455,8 @@ bool OpenCvCamera::Impl::ReadFileFrame() {
     frame_time = SecondsToDuration(static_cast<double>(frame_index) / fps);
   } else {
     const double ms = capture.get(cv::CAP_PROP_POS_MSEC);
-    frame_time = std::isfinite(ms) && ms > 0.0 ? SecondsToDuration(ms / 1000.0) : Duration{0};
+    frame_time =
+        std::isfinite(ms) && ms > 0.0 ? SecondsToDuration(ms / 1000.0) : common::Duration{0};
     // A container without presentation times (or one that repeats them) still gets strictly
     // increasing stamps, one nominal period apart.
     if (frame_index > 0 && frame_time <= last_stream_time) {
@@ -468,7 +471,7 @@ bool OpenCvCamera::Impl::RewindFile() {
   pass_offset += last_stream_time + period;
   id_offset += pass_frames;
   pass_frames = 0;
-  last_stream_time = Duration{0};
+  last_stream_time = common::Duration{0};
   // Reopening is the one rewind every container and backend supports (seeking to frame 0 is
   // approximate for some codecs).
   capture.release();
@@ -566,7 +569,7 @@ bool OpenCvCamera::Impl::DeviceNodeExists() const {
 
 OpenCvCamera::Impl::ReadOutcome OpenCvCamera::Impl::ReadV4l2Frame(Image* image) {
   if (!capture.grab()) return DeviceNodeExists() ? ReadOutcome::kFailed : ReadOutcome::kGone;
-  const Duration now = clock.Now();
+  const common::Duration now = clock.Now();
   if (!capture.retrieve(frame) || frame.empty()) {
     ++counters.decode_errors;
     spdlog::warn("{}: a frame could not be decoded; skipped", name);
@@ -574,10 +577,10 @@ OpenCvCamera::Impl::ReadOutcome OpenCvCamera::Impl::ReadV4l2Frame(Image* image) 
   }
   // The driver's buffer stamp is CLOCK_MONOTONIC, which is the steady clock's; on any other
   // clock it is implausible and the time of hand-over is taken instead.
-  Duration stamp = now;
+  common::Duration stamp = now;
   const double ms = capture.get(cv::CAP_PROP_POS_MSEC);
   if (std::isfinite(ms) && ms > 0.0) {
-    const Duration driver = SecondsToDuration(ms / 1000.0);
+    const common::Duration driver = SecondsToDuration(ms / 1000.0);
     if (driver <= now && now - driver < 1s) stamp = driver;
   }
   if (have_last_stamp && stamp <= last_stamp) {
@@ -611,7 +614,8 @@ OpenCvCamera::Impl::ReadOutcome OpenCvCamera::Impl::ReadV4l2Frame(Image* image) 
 }
 
 std::error_code OpenCvCamera::Impl::GrabV4l2(Image* out, std::chrono::milliseconds timeout) {
-  const Duration deadline = clock.Now() + std::chrono::duration_cast<Duration>(timeout);
+  const common::Duration deadline =
+      clock.Now() + std::chrono::duration_cast<common::Duration>(timeout);
   while (true) {
     switch (ReadV4l2Frame(out)) {
       case ReadOutcome::kFrame:
@@ -680,8 +684,8 @@ void OpenCvCamera::Impl::V4l2GrabberLoop() {
 // frames exactly as it would on a real camera.
 void OpenCvCamera::Impl::RecordedGrabberLoop() {
   bool first = true;
-  Duration first_stamp{0};
-  Duration clock_start{0};
+  common::Duration first_stamp{0};
+  common::Duration clock_start{0};
   while (!StopRequested()) {
     const std::error_code ec = GrabRecorded(&back);
     if (ec) {
@@ -697,14 +701,14 @@ void OpenCvCamera::Impl::RecordedGrabberLoop() {
       first_stamp = back.timestamp;
       clock_start = clock.Now();
     }
-    const Duration due = clock_start + (back.timestamp - first_stamp);
+    const common::Duration due = clock_start + (back.timestamp - first_stamp);
     // Sleep in slices so that Stop() is not held up by a long gap in the recording.
-    for (Duration now = clock.Now(); now < due; now = clock.Now()) {
+    for (common::Duration now = clock.Now(); now < due; now = clock.Now()) {
       if (StopRequested()) {
         ++counters.dropped;  // read but never published
         return;
       }
-      clock.SleepUntil(std::min(due, now + Duration(10ms)));
+      clock.SleepUntil(std::min(due, now + common::Duration(10ms)));
     }
     Publish();
   }
@@ -735,14 +739,14 @@ std::error_code OpenCvCamera::Impl::GrabLatest(Image* out, std::chrono::millisec
   return {};
 }
 
-OpenCvCamera::OpenCvCamera(std::string name, OpenCvCameraOptions options, Clock& clock)
+OpenCvCamera::OpenCvCamera(std::string name, OpenCvCameraOptions options, common::Clock& clock)
     : impl_(std::make_unique<Impl>(std::move(name), std::move(options), clock)) {}
 
 OpenCvCamera::~OpenCvCamera() { impl_->Stop(); }
 
 const std::string& OpenCvCamera::name() const { return impl_->name; }
 
-DeviceLifecycle OpenCvCamera::lifecycle() const { return impl_->lifecycle.load(); }
+common::DeviceLifecycle OpenCvCamera::lifecycle() const { return impl_->lifecycle.load(); }
 
 void OpenCvCamera::Open() { impl_->Open(); }
 

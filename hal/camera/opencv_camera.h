@@ -41,8 +41,8 @@
 #include <optional>
 #include <string>
 
+#include "common/clock.h"
 #include "hal/camera/camera.h"
-#include "hal/common/clock.h"
 
 namespace kinevis::hal {
 
@@ -69,13 +69,13 @@ class OpenCvCamera final : public Camera {
   // `name` is the source string ("v4l2:/dev/video0"); `clock` time-stamps frames and measures
   // timeouts and must outlive the camera. Nothing is opened before Open().
   OpenCvCamera(std::string name, OpenCvCameraOptions options,
-               Clock& clock = SteadyClock::Instance());
+               common::Clock& clock = common::SteadyClock::Instance());
   ~OpenCvCamera() override;
   OpenCvCamera(const OpenCvCamera&) = delete;
   OpenCvCamera& operator=(const OpenCvCamera&) = delete;
 
   const std::string& name() const override;
-  DeviceLifecycle lifecycle() const override;
+  common::DeviceLifecycle lifecycle() const override;
 
   // Opens the source and learns the format; reads the first frame of a file or the first image
   // that decodes (it is the first one Grab() delivers). Throws HalError naming the source and

@@ -61,7 +61,7 @@ void RegisterRenderSource(const std::string& name, const CameraFormat& format, R
   if (!problems.empty()) {
     std::string all = "render source \"" + name + "\": ";
     for (size_t i = 0; i < problems.size(); ++i) all += (i > 0 ? "; " : "") + problems[i];
-    throw ConfigError(all);
+    throw common::ConfigError(all);
   }
   sources.emplace(name, RenderSource{format, intrinsics_id, std::move(render)});
 }
@@ -82,10 +82,10 @@ std::vector<std::string> RegisteredRenderSources() {
   return names;  // std::map keeps them sorted
 }
 
-SimCamera::SimCamera(std::string name, SimCameraOptions options, Clock& clock)
+SimCamera::SimCamera(std::string name, SimCameraOptions options, common::Clock& clock)
     : name_(std::move(name)), options_(std::move(options)), clock_(clock) {}
 
-DeviceLifecycle SimCamera::lifecycle() const { return lifecycle_.load(); }
+common::DeviceLifecycle SimCamera::lifecycle() const { return lifecycle_.load(); }
 
 CameraFormat SimCamera::format() const {
   std::lock_guard<std::mutex> lock(format_mutex_);
@@ -93,11 +93,12 @@ CameraFormat SimCamera::format() const {
 }
 
 void SimCamera::Open() {
-  const DeviceLifecycle state = lifecycle_.load();
-  if (state == DeviceLifecycle::kConfigured || state == DeviceLifecycle::kActive) return;
+  const common::DeviceLifecycle state = lifecycle_.load();
+  if (state == common::DeviceLifecycle::kConfigured || state == common::DeviceLifecycle::kActive)
+    return;
   if (options_.fps < 0.0 || !std::isfinite(options_.fps)) {
-    throw ConfigError("camera source \"" + name_ + "\": fps " + std::to_string(options_.fps) +
-                      " is not a positive number");
+    throw common::ConfigError("camera source \"" + name_ + "\": fps " +
+                              std::to_string(options_.fps) + " is not a positive number");
   }
   CameraFormat format;
   std::string intrinsics_id;
@@ -121,36 +122,37 @@ void SimCamera::Open() {
     format_ = format;
   }
   intrinsics_id_ = intrinsics_id;
-  lifecycle_ = DeviceLifecycle::kConfigured;
+  lifecycle_ = common::DeviceLifecycle::kConfigured;
   spdlog::debug("{}: open, {}x{} {} at {} fps, intrinsics \"{}\"", name_, format.width,
                 format.height, ToString(format.pixel_format), format.fps, intrinsics_id_);
 }
 
 std::error_code SimCamera::Start() {
-  const DeviceLifecycle state = lifecycle_.load();
-  if (state == DeviceLifecycle::kActive) return {};
-  if (state != DeviceLifecycle::kConfigured) return Errc::kNotActive;
+  const common::DeviceLifecycle state = lifecycle_.load();
+  if (state == common::DeviceLifecycle::kActive) return {};
+  if (state != common::DeviceLifecycle::kConfigured) return Errc::kNotActive;
   start_ = clock_.Now();
   next_frame_ = 0;
-  lifecycle_ = DeviceLifecycle::kActive;
+  lifecycle_ = common::DeviceLifecycle::kActive;
   return {};
 }
 
 void SimCamera::Stop() {
-  if (lifecycle_.load() == DeviceLifecycle::kActive) lifecycle_ = DeviceLifecycle::kConfigured;
+  if (lifecycle_.load() == common::DeviceLifecycle::kActive)
+    lifecycle_ = common::DeviceLifecycle::kConfigured;
 }
 
-Duration SimCamera::FrameTime(uint64_t k) const {
+common::Duration SimCamera::FrameTime(uint64_t k) const {
   const double fps = format_.fps;  // only the camera's own thread writes format_ (in Open)
-  return start_ + Duration(std::llround(static_cast<double>(k) * 1e9 / fps));
+  return start_ + common::Duration(std::llround(static_cast<double>(k) * 1e9 / fps));
 }
 
 std::error_code SimCamera::Grab(Image* out, std::chrono::milliseconds timeout) {
-  const DeviceLifecycle state = lifecycle_.load();
-  if (state == DeviceLifecycle::kFault) return Errc::kClosed;
-  if (state != DeviceLifecycle::kActive) return Errc::kNotActive;
+  const common::DeviceLifecycle state = lifecycle_.load();
+  if (state == common::DeviceLifecycle::kFault) return Errc::kClosed;
+  if (state != common::DeviceLifecycle::kActive) return Errc::kNotActive;
 
-  Duration now = clock_.Now();
+  common::Duration now = clock_.Now();
   // Late by a period or more: skip to the newest frame already captured.
   if (FrameTime(next_frame_ + 1) <= now) {
     uint64_t newest = static_cast<uint64_t>(
@@ -160,9 +162,9 @@ std::error_code SimCamera::Grab(Image* out, std::chrono::milliseconds timeout) {
     counters_.dropped += newest - next_frame_;
     next_frame_ = newest;
   }
-  const Duration due = FrameTime(next_frame_);
+  const common::Duration due = FrameTime(next_frame_);
   if (due > now) {
-    const Duration deadline = now + std::chrono::duration_cast<Duration>(timeout);
+    const common::Duration deadline = now + std::chrono::duration_cast<common::Duration>(timeout);
     if (due > deadline) {
       clock_.SleepUntil(deadline);
       ++counters_.timeouts;
@@ -182,7 +184,7 @@ std::error_code SimCamera::Grab(Image* out, std::chrono::milliseconds timeout) {
     auto it = sources.find(options_.source);
     if (it == sources.end()) {
       lock.unlock();
-      lifecycle_ = DeviceLifecycle::kFault;
+      lifecycle_ = common::DeviceLifecycle::kFault;
       spdlog::error("{}: render source \"{}\" was unregistered; camera in fault", name_,
                     options_.source);
       return Errc::kClosed;

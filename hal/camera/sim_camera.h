@@ -4,7 +4,7 @@
 //
 // hal/ knows nothing of scenes or robots: the pixels come from a render callback that sim/
 // registers under a name in a process-wide registry ("hexapod-perspective"). SimCamera looks the
-// name up, paces frames on a hal::Clock at the nominal frame rate and asks the callback for each
+// name up, paces frames on a common::Clock at the nominal frame rate and asks the callback for each
 // frame. On a SimulatedClock the camera runs as fast as the simulation advances time (in free-
 // running mode every Grab() moves the clock to the next frame at once), so tests are exact and
 // fast.
@@ -23,8 +23,8 @@
 #include <system_error>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/camera/camera.h"
-#include "hal/common/clock.h"
 
 namespace kinevis::hal {
 
@@ -33,7 +33,8 @@ namespace kinevis::hal {
 // pixels and must not resize it. Returns {} or an error code of its own, which Grab() passes on
 // (counted as a decode error). Called from the thread that calls Grab(); renders of different
 // cameras may run at the same time.
-using RenderFn = std::function<std::error_code(uint64_t frame_id, Duration time, Image* image)>;
+using RenderFn =
+    std::function<std::error_code(uint64_t frame_id, common::Duration time, Image* image)>;
 
 // Registers a render source under `name` for every SimCamera of this process. `format` is what
 // the callback renders: width, height > 0, fps > 0 (the nominal rate; "fps=F" in a source
@@ -61,10 +62,11 @@ class SimCamera final : public Camera {
  public:
   // `name` is the source string ("sim:hexapod-perspective"). `clock` paces the frames and must
   // outlive the camera. Nothing is looked up before Open().
-  SimCamera(std::string name, SimCameraOptions options, Clock& clock = SteadyClock::Instance());
+  SimCamera(std::string name, SimCameraOptions options,
+            common::Clock& clock = common::SteadyClock::Instance());
 
   const std::string& name() const override { return name_; }
-  DeviceLifecycle lifecycle() const override;
+  common::DeviceLifecycle lifecycle() const override;
 
   // Looks the render source up. Throws HalError naming the source and listing the registered
   // names when there is none of that name; ConfigError when options.fps is negative.
@@ -85,17 +87,17 @@ class SimCamera final : public Camera {
 
  private:
   // Capture time of frame k: start + k / fps, computed from k so that rounding never accumulates.
-  Duration FrameTime(uint64_t k) const;
+  common::Duration FrameTime(uint64_t k) const;
 
   const std::string name_;
   const SimCameraOptions options_;
-  Clock& clock_;
-  std::atomic<DeviceLifecycle> lifecycle_{DeviceLifecycle::kUnconfigured};
+  common::Clock& clock_;
+  std::atomic<common::DeviceLifecycle> lifecycle_{common::DeviceLifecycle::kUnconfigured};
   mutable std::mutex format_mutex_;  // format_ is written by Open() and read from any thread
   CameraFormat format_;
   std::string intrinsics_id_;  // written by Open() only, before streaming
   AtomicCameraCounters counters_;
-  Duration start_{0};
+  common::Duration start_{0};
   uint64_t next_frame_ = 0;
 };
 

@@ -21,7 +21,7 @@ std::unique_ptr<CanBus> OpenCanBus(std::string_view backend) {
       return VirtualCanNetwork::Get(spec.interface, options)->Connect(spec.text);
     }
   }
-  throw ConfigError("backend \"" + spec.text + "\": unknown CAN backend kind");
+  throw common::ConfigError("backend \"" + spec.text + "\": unknown CAN backend kind");
 }
 
 }  // namespace kinevis::hal

@@ -1,8 +1,9 @@
 #include "hal/can/can_frame.h"
 
 #include <algorithm>
-#include <cassert>
 #include <cstdio>
+
+#include "common/check.h"
 
 namespace kinevis::hal {
 namespace {
@@ -34,7 +35,7 @@ bool ParseHexU32(std::string_view s, uint32_t* out) {
 }  // namespace
 
 CanFrame CanFrame::Standard(uint32_t id, std::initializer_list<uint8_t> payload) {
-  assert(id <= kMaxStandardId && payload.size() <= 8);
+  KINEVIS_DEMAND(id <= kMaxStandardId && payload.size() <= 8);
   CanFrame f;
   f.id = id;
   f.dlc = static_cast<uint8_t>(payload.size());
@@ -43,7 +44,7 @@ CanFrame CanFrame::Standard(uint32_t id, std::initializer_list<uint8_t> payload)
 }
 
 CanFrame CanFrame::Extended(uint32_t id, std::initializer_list<uint8_t> payload) {
-  assert(id <= kMaxExtendedId && payload.size() <= 8);
+  KINEVIS_DEMAND(id <= kMaxExtendedId && payload.size() <= 8);
   CanFrame f = Standard(0, payload);
   f.id = id;
   f.extended = true;

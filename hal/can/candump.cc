@@ -196,8 +196,8 @@ std::vector<CandumpRecord> ReadCandumpFile(const std::string& path) {
   errno = 0;
   std::ifstream in(path);
   if (!in.is_open()) {
-    throw ConfigError(path + ": cannot open candump log: " +
-                      (errno != 0 ? ErrnoText(errno) : std::string("unknown error")));
+    throw common::ConfigError(path + ": cannot open candump log: " +
+                              (errno != 0 ? ErrnoText(errno) : std::string("unknown error")));
   }
   std::vector<CandumpRecord> records;
   std::string message;
@@ -218,12 +218,12 @@ std::vector<CandumpRecord> ReadCandumpFile(const std::string& path) {
       message.append(path).append(":").append(std::to_string(number)).append(": ").append(why);
     }
   }
-  if (in.bad()) throw ConfigError(path + ": read error in candump log");
+  if (in.bad()) throw common::ConfigError(path + ": read error in candump log");
   if (bad_lines > kMaxReportedBadLines) {
     message += "\n" + path + ": ... and " + std::to_string(bad_lines - kMaxReportedBadLines) +
                " more bad lines";
   }
-  if (bad_lines > 0) throw ConfigError(message);
+  if (bad_lines > 0) throw common::ConfigError(message);
   return records;
 }
 
@@ -233,8 +233,8 @@ CandumpWriter::CandumpWriter(const std::string& path) : out_(&file_) {
   errno = 0;
   file_.open(path, std::ios::out | std::ios::trunc);
   if (!file_.is_open()) {
-    throw ConfigError(path + ": cannot create candump log: " +
-                      (errno != 0 ? ErrnoText(errno) : std::string("unknown error")));
+    throw common::ConfigError(path + ": cannot create candump log: " +
+                              (errno != 0 ? ErrnoText(errno) : std::string("unknown error")));
   }
 }
 

@@ -38,7 +38,7 @@ CanBackendSpec CheckedSpec(const CanBackendSpec& spec, const SlcanBusOptions& op
   if (!problems.empty()) {
     std::string message = "backend \"" + BusName(spec) + "\": ";
     for (size_t i = 0; i < problems.size(); ++i) message += (i ? "; " : "") + problems[i];
-    throw ConfigError(message);
+    throw common::ConfigError(message);
   }
   return spec;
 }
@@ -170,7 +170,7 @@ SlcanBus::Reply SlcanBus::SetUpCommand(const std::string& line, bool want_versio
       throw HalError(name_, "set-up command \"" + Printable(line) + "\"",
                      "reading from the serial port failed: " + ec.message(), ec);
     }
-    const Duration arrival = SteadyClock::Instance().Now();
+    const common::Duration arrival = common::SteadyClock::Instance().Now();
     std::lock_guard<std::mutex> lock(mutex_);
     decoder_.Feed(buffer, n, [&](const SlcanEvent& e) {
       if (reply == Reply::kNone) {
@@ -221,7 +221,7 @@ void SlcanBus::ReaderLoop() {
     size_t n = 0;
     std::error_code ec = port_->Read(buffer, sizeof buffer, kReadPoll, &n);
     if (ec == Errc::kTimeout) continue;
-    const Duration arrival = SteadyClock::Instance().Now();
+    const common::Duration arrival = common::SteadyClock::Instance().Now();
     if (ec) {
       spdlog::error("{}: serial link lost: {}", name_, ec.message());
       {
@@ -236,7 +236,7 @@ void SlcanBus::ReaderLoop() {
     // allocate.
     struct Context {
       SlcanBus* bus;
-      Duration arrival;
+      common::Duration arrival;
       bool frames_queued;
     } context{this, arrival, false};
     {
@@ -249,7 +249,8 @@ void SlcanBus::ReaderLoop() {
   }
 }
 
-void SlcanBus::HandleEventLocked(const SlcanEvent& event, Duration arrival, bool* frames_queued) {
+void SlcanBus::HandleEventLocked(const SlcanEvent& event, common::Duration arrival,
+                                 bool* frames_queued) {
   using Kind = SlcanEvent::Kind;
   switch (event.kind) {
     case Kind::kFrame:
@@ -291,7 +292,8 @@ void SlcanBus::HandleEventLocked(const SlcanEvent& event, Duration arrival, bool
   }
 }
 
-void SlcanBus::QueueFrameLocked(const SlcanEvent& event, Duration arrival, bool* frames_queued) {
+void SlcanBus::QueueFrameLocked(const SlcanEvent& event, common::Duration arrival,
+                                bool* frames_queued) {
   if (!filters_.empty()) {
     bool pass = false;
     for (const CanFilter& f : filters_) pass = pass || f.Matches(event.frame);
@@ -319,7 +321,7 @@ void SlcanBus::QueueFrameLocked(const SlcanEvent& event, Duration arrival, bool*
   *frames_queued = true;
 }
 
-void SlcanBus::HandleStatusLocked(uint8_t flags, Duration at) {
+void SlcanBus::HandleStatusLocked(uint8_t flags, common::Duration at) {
   const std::string text = StatusText(flags);
   if ((flags & kSlcanErrorWarning) != 0) {
     RaiseLocked(CanErrorKind::kErrorWarning, at, "adapter status " + text);
@@ -344,7 +346,7 @@ void SlcanBus::HandleStatusLocked(uint8_t flags, Duration at) {
   }
 }
 
-void SlcanBus::RaiseLocked(CanErrorKind kind, Duration at, std::string detail) {
+void SlcanBus::RaiseLocked(CanErrorKind kind, common::Duration at, std::string detail) {
   ++counters_.error_events;
   if (kind == CanErrorKind::kBusOff) ++counters_.bus_off_events;
   // A line spewing garbage would otherwise flood the log: at most kMaxLogsPerSecond lines, and

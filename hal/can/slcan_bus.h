@@ -42,10 +42,10 @@
 #include <thread>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/can/can_bus.h"
 #include "hal/can/slcan_codec.h"
 #include "hal/common/backend_spec.h"
-#include "hal/common/clock.h"
 #include "hal/serial/serial_port.h"
 
 namespace kinevis::hal {
@@ -120,10 +120,10 @@ class SlcanBus final : public CanBus {
                                     Reply reply) const;
   void ReaderLoop();
   // Require mutex_ held.
-  void HandleEventLocked(const SlcanEvent& event, Duration arrival, bool* frames_queued);
-  void QueueFrameLocked(const SlcanEvent& event, Duration arrival, bool* frames_queued);
-  void HandleStatusLocked(uint8_t flags, Duration at);
-  void RaiseLocked(CanErrorKind kind, Duration at, std::string detail);
+  void HandleEventLocked(const SlcanEvent& event, common::Duration arrival, bool* frames_queued);
+  void QueueFrameLocked(const SlcanEvent& event, common::Duration arrival, bool* frames_queued);
+  void HandleStatusLocked(uint8_t flags, common::Duration at);
+  void RaiseLocked(CanErrorKind kind, common::Duration at, std::string detail);
   void PushExpectedLocked(Expect expect);
   Expect PopExpectedLocked();
   // Writes one line to the adapter and remembers which reply it expects.
@@ -151,7 +151,7 @@ class SlcanBus final : public CanBus {
   bool link_closed_ = false;
   bool send_failing_ = false;  // logged once per run of failures
   bool status_refused_ = false;
-  Duration log_window_start_{0};  // error-event log rate limit
+  common::Duration log_window_start_{0};  // error-event log rate limit
   int logged_in_window_ = 0;
   uint64_t logs_suppressed_ = 0;
   // What each line sent is waiting for, oldest first: replies come back in order, which tells a

@@ -49,8 +49,8 @@ class FdGuard {
 // floods error frames cannot flood the log.
 bool ShouldLog(uint64_t count) { return count <= 10 || count % 1000 == 0; }
 
-timespec ToTimespec(Duration d) {
-  if (d.count() < 0) d = Duration::zero();
+timespec ToTimespec(common::Duration d) {
+  if (d.count() < 0) d = common::Duration::zero();
   timespec ts;
   ts.tv_sec = static_cast<time_t>(d.count() / 1'000'000'000);
   ts.tv_nsec = static_cast<decltype(ts.tv_nsec)>(d.count() % 1'000'000'000);
@@ -59,7 +59,7 @@ timespec ToTimespec(Duration d) {
 
 // Waits until fd is ready for `events` or `timeout` passes; returns poll's revents, 0 on timeout
 // (or EINTR: the caller re-checks its deadline) and -1 with errno on failure.
-int WaitFor(int fd, decltype(pollfd::events) events, Duration timeout) {
+int WaitFor(int fd, decltype(pollfd::events) events, common::Duration timeout) {
   pollfd p{fd, events, 0};
   timespec ts = ToTimespec(timeout);
   int n = ::ppoll(&p, 1, &ts, nullptr);
@@ -69,14 +69,15 @@ int WaitFor(int fd, decltype(pollfd::events) events, Duration timeout) {
 
 // CLOCK_REALTIME - SteadyClock, measured with the realtime read bracketed by two steady reads;
 // nullopt when the thread was preempted between them (the measurement would be off).
-std::optional<Duration> MeasureRealtimeOffset() {
+std::optional<common::Duration> MeasureRealtimeOffset() {
   for (int attempt = 0; attempt < 3; ++attempt) {
-    Duration before = SteadyClock::Instance().Now();
+    common::Duration before = common::SteadyClock::Instance().Now();
     timespec rt;
     ::clock_gettime(CLOCK_REALTIME, &rt);
-    Duration after = SteadyClock::Instance().Now();
+    common::Duration after = common::SteadyClock::Instance().Now();
     if (after - before < microseconds(50)) {
-      Duration realtime = std::chrono::seconds(rt.tv_sec) + std::chrono::nanoseconds(rt.tv_nsec);
+      common::Duration realtime =
+          std::chrono::seconds(rt.tv_sec) + std::chrono::nanoseconds(rt.tv_nsec);
       return realtime - (before + (after - before) / 2);
     }
   }
@@ -283,10 +284,10 @@ ErrorFrameReport DecodeErrorFrame(uint32_t error_class, const uint8_t* data) {
 void CheckOptions(const std::string& name, const SocketCanOptions& options) {
   if (options.tx_timeout.count() < 0 || options.tx_timeout > std::chrono::seconds(1) ||
       options.max_pending_error_events == 0 || options.max_pending_error_events > 1'000'000) {
-    throw ConfigError(name + ": socketcan options: tx_timeout " +
-                      std::to_string(options.tx_timeout.count()) +
-                      " us must be 0..1000000, max_pending_error_events " +
-                      std::to_string(options.max_pending_error_events) + " must be 1..1000000");
+    throw common::ConfigError(
+        name + ": socketcan options: tx_timeout " + std::to_string(options.tx_timeout.count()) +
+        " us must be 0..1000000, max_pending_error_events " +
+        std::to_string(options.max_pending_error_events) + " must be 1..1000000");
   }
 }
 
@@ -297,9 +298,9 @@ std::unique_ptr<SocketCanBus> SocketCanBus::Open(const std::string& interface,
                                                  const SocketCanOptions& options) {
   if (interface.empty() || interface.size() >= IFNAMSIZ ||
       interface.find_first_of(" \t/:") != std::string::npos) {
-    throw ConfigError(name + ": socketcan interface \"" + interface +
-                      "\" is not a valid interface name (1.." + std::to_string(IFNAMSIZ - 1) +
-                      " characters, no blanks, '/' or ':')");
+    throw common::ConfigError(name + ": socketcan interface \"" + interface +
+                              "\" is not a valid interface name (1.." +
+                              std::to_string(IFNAMSIZ - 1) + " characters, no blanks, '/' or ':')");
   }
   CheckOptions(name, options);
   const int fd = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
@@ -406,7 +407,7 @@ SocketCanBus::SocketCanBus(int fd, std::string name, std::string interface,
   const can_filter pass_all{0, 0};
   features_.kernel_filters =
       set(SOL_CAN_RAW, CAN_RAW_FILTER, &pass_all, sizeof pass_all, "CAN_RAW_FILTER");
-  if (std::optional<Duration> offset = MeasureRealtimeOffset()) realtime_offset_ = *offset;
+  if (std::optional<common::Duration> offset = MeasureRealtimeOffset()) realtime_offset_ = *offset;
   if (refused.empty()) {
     spdlog::info("{}: SocketCAN bus on {} (fd {})", name_,
                  interface_.empty() ? "an adopted descriptor" : interface_, fd_);
@@ -451,8 +452,8 @@ std::error_code SocketCanBus::Send(const CanFrame& frame) {
   record.can_dlc = frame.dlc;
   if (!frame.rtr) std::memcpy(record.data, frame.data.data(), frame.dlc);
 
-  SteadyClock& clock = SteadyClock::Instance();
-  std::optional<Duration> deadline;
+  common::SteadyClock& clock = common::SteadyClock::Instance();
+  std::optional<common::Duration> deadline;
   while (true) {
     ssize_t n = use_write_ ? ::write(fd_, &record, sizeof record)
                            : ::send(fd_, &record, sizeof record, MSG_NOSIGNAL | MSG_DONTWAIT);
@@ -471,16 +472,16 @@ std::error_code SocketCanBus::Send(const CanFrame& frame) {
     if (err == EAGAIN || err == EWOULDBLOCK || err == ENOBUFS) {
       // EAGAIN: the socket's send buffer is full, POLLOUT says when it has room. ENOBUFS: the
       // interface's transmit queue is full, which poll cannot see; retry every 100 us.
-      const Duration now = clock.Now();
+      const common::Duration now = clock.Now();
       if (!deadline) deadline = now + options_.tx_timeout;
-      const Duration remaining = *deadline - now;
-      if (remaining <= Duration::zero()) {
+      const common::Duration remaining = *deadline - now;
+      if (remaining <= common::Duration::zero()) {
         return fail(Errc::kOverflow, "transmit queue still full after " +
                                          std::to_string(options_.tx_timeout.count()) + " us (" +
                                          ErrnoText(err) + ")");
       }
       if (err == ENOBUFS) {
-        clock.SleepFor(std::min<Duration>(remaining, microseconds(100)));
+        clock.SleepFor(std::min<common::Duration>(remaining, microseconds(100)));
       } else if (WaitFor(fd_, POLLOUT, remaining) < 0) {
         return fail(Errc::kIo, "poll: " + ErrnoText(errno));
       }
@@ -497,8 +498,8 @@ std::error_code SocketCanBus::Send(const CanFrame& frame) {
 }
 
 std::error_code SocketCanBus::Receive(CanFrame* frame, std::chrono::microseconds timeout) {
-  SteadyClock& clock = SteadyClock::Instance();
-  const Duration deadline =
+  common::SteadyClock& clock = common::SteadyClock::Instance();
+  const common::Duration deadline =
       clock.Now() + std::clamp(timeout, microseconds::zero(), microseconds(std::chrono::hours(24)));
   while (true) {
     switch (ReadOne(frame)) {
@@ -513,8 +514,8 @@ std::error_code SocketCanBus::Receive(CanFrame* frame, std::chrono::microseconds
       case ReadOutcome::kEmpty:
         break;
     }
-    const Duration remaining = deadline - clock.Now();
-    if (remaining <= Duration::zero()) return Errc::kTimeout;
+    const common::Duration remaining = deadline - clock.Now();
+    if (remaining <= common::Duration::zero()) return Errc::kTimeout;
     const int revents = WaitFor(fd_, POLLIN, remaining);
     if (revents < 0) {
       spdlog::error("{}: poll: {}", name_, ErrnoText(errno));
@@ -583,7 +584,7 @@ SocketCanBus::ReadOutcome SocketCanBus::ReadOne(CanFrame* frame) {
       drop_count = count;
     }
   }
-  const Duration at = ConvertTimestamp(have_kernel_time, realtime_ns);
+  const common::Duration at = ConvertTimestamp(have_kernel_time, realtime_ns);
   if (drop_count) HandleDropCount(*drop_count, at);
 
   const bool truncated = (message.msg_flags & MSG_TRUNC) != 0;
@@ -643,31 +644,31 @@ SocketCanBus::ReadOutcome SocketCanBus::ReadOne(CanFrame* frame) {
   return ReadOutcome::kFrame;
 }
 
-Duration SocketCanBus::ConvertTimestamp(bool have_kernel_time, int64_t realtime_ns) {
-  Duration t;
+common::Duration SocketCanBus::ConvertTimestamp(bool have_kernel_time, int64_t realtime_ns) {
+  common::Duration t;
   if (have_kernel_time) {
     // The offset stays put while the wall clock runs (NTP slews both clocks alike); a jump of
     // more than a millisecond is a wall-clock step, which the offset must follow.
-    if (std::optional<Duration> measured = MeasureRealtimeOffset()) {
-      const Duration change = *measured - realtime_offset_;
+    if (std::optional<common::Duration> measured = MeasureRealtimeOffset()) {
+      const common::Duration change = *measured - realtime_offset_;
       if (change > milliseconds(1) || change < -milliseconds(1)) {
-        if (last_timestamp_ != Duration::zero()) {
+        if (last_timestamp_ != common::Duration::zero()) {
           spdlog::info("{}: the wall clock stepped by {} us; kernel timestamps follow", name_,
                        std::chrono::duration_cast<microseconds>(change).count());
         }
         realtime_offset_ = *measured;
       }
     }
-    t = Duration(realtime_ns) - realtime_offset_;
+    t = common::Duration(realtime_ns) - realtime_offset_;
   } else {
-    t = SteadyClock::Instance().Now();
+    t = common::SteadyClock::Instance().Now();
   }
   if (t < last_timestamp_) t = last_timestamp_;
   last_timestamp_ = t;
   return t;
 }
 
-void SocketCanBus::HandleDropCount(uint32_t drop_count, Duration at) {
+void SocketCanBus::HandleDropCount(uint32_t drop_count, common::Duration at) {
   // The kernel's count is cumulative for the socket and wraps at 2^32.
   const uint32_t dropped = drop_count - last_drop_count_;
   last_drop_count_ = drop_count;
@@ -681,7 +682,8 @@ void SocketCanBus::HandleDropCount(uint32_t drop_count, Duration at) {
                   std::to_string(drop_count) + " in total)");
 }
 
-void SocketCanBus::HandleErrorFrame(uint32_t error_class, const uint8_t* data, Duration at) {
+void SocketCanBus::HandleErrorFrame(uint32_t error_class, const uint8_t* data,
+                                    common::Duration at) {
   ErrorFrameReport report = DecodeErrorFrame(error_class, data);
   if (!report.unreported.empty()) {
     spdlog::debug("{}: error frame class {:#x}: {}", name_, error_class, report.unreported);
@@ -698,7 +700,7 @@ void SocketCanBus::HandleErrorFrame(uint32_t error_class, const uint8_t* data, D
   }
 }
 
-void SocketCanBus::RaiseLocked(CanErrorKind kind, Duration at, std::string detail) {
+void SocketCanBus::RaiseLocked(CanErrorKind kind, common::Duration at, std::string detail) {
   const uint64_t count = ++counters_.error_events;
   if (kind == CanErrorKind::kBusOff) {
     ++counters_.bus_off_events;

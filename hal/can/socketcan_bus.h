@@ -39,8 +39,8 @@
 #include <system_error>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/can/can_bus.h"
-#include "hal/common/clock.h"
 
 namespace kinevis::hal {
 
@@ -114,11 +114,11 @@ class SocketCanBus final : public CanBus {
   // here (kConsumed: error frame, filtered, undecodable), nothing queued (kEmpty), or a failure.
   ReadOutcome ReadOne(CanFrame* frame);
   // The timestamp of a record: kernel time converted to the SteadyClock base, or now.
-  Duration ConvertTimestamp(bool have_kernel_time, int64_t realtime_ns);
-  void HandleDropCount(uint32_t drop_count, Duration at);
-  void HandleErrorFrame(uint32_t error_class, const uint8_t* data, Duration at);
+  common::Duration ConvertTimestamp(bool have_kernel_time, int64_t realtime_ns);
+  void HandleDropCount(uint32_t drop_count, common::Duration at);
+  void HandleErrorFrame(uint32_t error_class, const uint8_t* data, common::Duration at);
   // Requires mutex_ held.
-  void RaiseLocked(CanErrorKind kind, Duration at, std::string detail);
+  void RaiseLocked(CanErrorKind kind, common::Duration at, std::string detail);
 
   const std::string name_;
   const std::string interface_;
@@ -127,8 +127,8 @@ class SocketCanBus final : public CanBus {
   bool use_write_ = false;  // Send() only: the descriptor is not a socket (ENOTSOCK seen)
 
   // Receive() only.
-  Duration realtime_offset_{0};  // CLOCK_REALTIME - SteadyClock, as last measured
-  Duration last_timestamp_{0};
+  common::Duration realtime_offset_{0};  // CLOCK_REALTIME - SteadyClock, as last measured
+  common::Duration last_timestamp_{0};
   uint32_t last_drop_count_ = 0;
 
   mutable std::mutex mutex_;  // guards everything below

@@ -33,8 +33,8 @@ std::map<std::string, std::weak_ptr<VirtualCanNetwork>>& Registry() {
   return r;
 }
 
-Duration WireTime(int bits, int bitrate) {
-  return Duration(static_cast<int64_t>(bits) * 1'000'000'000LL / bitrate);
+common::Duration WireTime(int bits, int bitrate) {
+  return common::Duration(static_cast<int64_t>(bits) * 1'000'000'000LL / bitrate);
 }
 
 }  // namespace
@@ -45,7 +45,7 @@ Duration WireTime(int bits, int bitrate) {
 VirtualCanNetwork::VirtualCanNetwork(std::string name, Options options)
     : name_(std::move(name)),
       options_(options),
-      clock_(options.clock != nullptr ? options.clock : &SteadyClock::Instance()),
+      clock_(options.clock != nullptr ? options.clock : &common::SteadyClock::Instance()),
       rng_(1) {
   std::string problems;
   if (options_.bitrate != 0 && (options_.bitrate < 10'000 || options_.bitrate > 1'000'000)) {
@@ -56,7 +56,7 @@ VirtualCanNetwork::VirtualCanNetwork(std::string name, Options options)
   if (options_.tx_queue_capacity == 0) problems += " tx_queue_capacity must be > 0;";
   if (!problems.empty()) {
     problems.pop_back();
-    throw ConfigError("virtual CAN network \"" + name_ + "\":" + problems);
+    throw common::ConfigError("virtual CAN network \"" + name_ + "\":" + problems);
   }
   stats_start_ = clock_->Now();
   bus_free_at_ = stats_start_;
@@ -72,9 +72,9 @@ std::shared_ptr<VirtualCanNetwork> VirtualCanNetwork::Get(const std::string& nam
   if (it != registry.end()) {
     if (auto existing = it->second.lock()) {
       if (existing->bitrate() != options.bitrate) {
-        throw ConfigError("virtual CAN network \"" + name + "\" already exists with bitrate " +
-                          std::to_string(existing->bitrate()) + ", asked for " +
-                          std::to_string(options.bitrate));
+        throw common::ConfigError(
+            "virtual CAN network \"" + name + "\" already exists with bitrate " +
+            std::to_string(existing->bitrate()) + ", asked for " + std::to_string(options.bitrate));
       }
       return existing;
     }
@@ -98,9 +98,9 @@ void VirtualCanNetwork::SetFaults(const Faults& faults) {
   faults_ = faults;
   faults_.drop_probability = std::clamp(faults.drop_probability, 0.0, 1.0);
   faults_.corrupt_probability = std::clamp(faults.corrupt_probability, 0.0, 1.0);
-  if (faults_.delay < Duration::zero()) faults_.delay = Duration::zero();
+  if (faults_.delay < common::Duration::zero()) faults_.delay = common::Duration::zero();
   faults_active_ = faults_.drop_probability > 0 || faults_.corrupt_probability > 0 ||
-                   faults_.delay > Duration::zero();
+                   faults_.delay > common::Duration::zero();
   rng_.seed(faults.seed);
 }
 
@@ -139,7 +139,8 @@ void VirtualCanNetwork::AbandonPendingLocked(VirtualCanBus* node) {
   node->tx_pending_ = 0;
 }
 
-void VirtualCanNetwork::DeliverLocked(const CanFrame& frame, VirtualCanBus* sender, Duration at) {
+void VirtualCanNetwork::DeliverLocked(const CanFrame& frame, VirtualCanBus* sender,
+                                      common::Duration at) {
   ++stats_.frames;
   for (VirtualCanBus* node : nodes_) {
     if (node == sender || node->state_ == CanBusState::kBusOff) continue;
@@ -167,11 +168,11 @@ void VirtualCanNetwork::DeliverLocked(const CanFrame& frame, VirtualCanBus* send
   }
 }
 
-void VirtualCanNetwork::PumpLocked(Duration now) {
+void VirtualCanNetwork::PumpLocked(common::Duration now) {
   while (!pending_.empty()) {
-    Duration earliest = pending_.front().submitted;
+    common::Duration earliest = pending_.front().submitted;
     for (const Pending& p : pending_) earliest = std::min(earliest, p.submitted);
-    const Duration start = std::max(bus_free_at_, earliest);
+    const common::Duration start = std::max(bus_free_at_, earliest);
     if (start > now) break;
     // Arbitration among the frames waiting when the wire became free.
     size_t winner = pending_.size();
@@ -187,7 +188,7 @@ void VirtualCanNetwork::PumpLocked(Duration now) {
       if (kp < kw || (kp == kw && p.sequence < w.sequence)) winner = i;
     }
     const Pending p = pending_[winner];
-    Duration end = start;
+    common::Duration end = start;
     int bits = 0;
     if (options_.bitrate > 0) {
       bits = CanFrameWireBits(p.frame);
@@ -225,7 +226,8 @@ void VirtualCanNetwork::PumpLocked(Duration now) {
       ++stats_.dropped;
       continue;
     }
-    const Duration deliver_at = end + (faults_active_ ? faults_.delay : Duration::zero());
+    const common::Duration deliver_at =
+        end + (faults_active_ ? faults_.delay : common::Duration::zero());
     // Keep in_flight_ sorted by delivery time (the delay may change between frames).
     auto pos = in_flight_.end();
     while (pos != in_flight_.begin() && std::prev(pos)->deliver_at > deliver_at) --pos;
@@ -264,7 +266,7 @@ std::error_code VirtualCanBus::Send(const CanFrame& frame) {
     ++counters_.tx_errors;
     return Errc::kBusOff;
   }
-  const Duration now = net.clock_->Now();
+  const common::Duration now = net.clock_->Now();
   if (net.options_.bitrate == 0 && !net.faults_active_ && net.pending_.empty() &&
       net.in_flight_.empty()) {
     // Infinitely fast wire, nothing queued: the frame is on every node at once.
@@ -290,13 +292,13 @@ std::error_code VirtualCanBus::Send(const CanFrame& frame) {
 
 std::error_code VirtualCanBus::Receive(CanFrame* frame, std::chrono::microseconds timeout) {
   VirtualCanNetwork& net = *network_;
-  const bool wall_clock = net.clock_ == &SteadyClock::Instance();
+  const bool wall_clock = net.clock_ == &common::SteadyClock::Instance();
   // Clamped: now() + microseconds::max() would overflow.
   const auto wall_deadline = std::chrono::steady_clock::now() +
                              std::min(timeout, std::chrono::microseconds(std::chrono::hours(24)));
   std::unique_lock<std::mutex> lock(net.mutex_);
   while (true) {
-    const Duration now = net.clock_->Now();
+    const common::Duration now = net.clock_->Now();
     net.PumpLocked(now);
     if (ring_size_ > 0) {
       *frame = ring_[ring_head_];
@@ -314,18 +316,18 @@ std::error_code VirtualCanBus::Receive(CanFrame* frame, std::chrono::microsecond
       wake = std::min(wake, std::chrono::steady_clock::now() + std::chrono::milliseconds(1));
     } else {
       // Next moment the wire can change: a delivery falling due or a transmission ending.
-      Duration next = Duration::max();
+      common::Duration next = common::Duration::max();
       if (!net.in_flight_.empty()) next = net.in_flight_.front().deliver_at;
       if (!net.pending_.empty()) {
-        Duration earliest = Duration::max();
+        common::Duration earliest = common::Duration::max();
         for (const auto& p : net.pending_) earliest = std::min(earliest, p.submitted);
-        Duration start = std::max(net.bus_free_at_, earliest);
+        common::Duration start = std::max(net.bus_free_at_, earliest);
         // Upper bound of one frame time (160 bits) keeps this cheap; the loop re-checks.
-        Duration end =
+        common::Duration end =
             net.options_.bitrate > 0 ? start + WireTime(160, net.options_.bitrate) : start;
         next = std::min(next, std::max(end, now));
       }
-      if (next != Duration::max()) {
+      if (next != common::Duration::max()) {
         auto t = std::chrono::steady_clock::time_point(
             std::chrono::duration_cast<std::chrono::steady_clock::duration>(next));
         wake = std::min(wake, t);
@@ -397,14 +399,14 @@ bool VirtualCanBus::PassesFiltersLocked(const CanFrame& frame) const {
   return false;
 }
 
-void VirtualCanBus::RaiseLocked(CanErrorKind kind, Duration at, std::string detail) {
+void VirtualCanBus::RaiseLocked(CanErrorKind kind, common::Duration at, std::string detail) {
   ++counters_.error_events;
   if (kind == CanErrorKind::kBusOff) ++counters_.bus_off_events;
   if (errors_.size() >= kMaxQueuedErrorEvents) errors_.pop_front();
   errors_.push_back(CanErrorEvent{kind, at, std::move(detail)});
 }
 
-void VirtualCanBus::AdjustCountersLocked(int tec_delta, int rec_delta, Duration at) {
+void VirtualCanBus::AdjustCountersLocked(int tec_delta, int rec_delta, common::Duration at) {
   if (state_ == CanBusState::kBusOff) return;
   tec_ = std::max(0, tec_ + tec_delta);
   // The receive error counter saturates at 128+ in error-passive (ISO 11898-1 keeps it there).

@@ -32,8 +32,8 @@
 #include <string>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/can/can_bus.h"
-#include "hal/common/clock.h"
 
 namespace kinevis::hal {
 
@@ -43,24 +43,24 @@ class VirtualCanNetwork : public std::enable_shared_from_this<VirtualCanNetwork>
  public:
   struct Options {
     int bitrate = 0;                  // bit/s, 0 = no bit-rate model; else 10'000..1'000'000
-    Clock* clock = nullptr;           // nullptr = SteadyClock::Instance()
+    common::Clock* clock = nullptr;   // nullptr = SteadyClock::Instance()
     size_t rx_queue_capacity = 4096;  // frames per node before rx-overflow
     size_t tx_queue_capacity = 256;   // frames a node may have waiting for the wire
   };
   struct Faults {
     double drop_probability = 0.0;     // a frame vanishes (no node sees it, sender sees success)
     double corrupt_probability = 0.0;  // a transmission attempt fails with a CRC error
-    Duration delay{0};                 // extra latency added to every delivery
+    common::Duration delay{0};         // extra latency added to every delivery
     uint32_t seed = 1;
   };
   struct Statistics {
-    uint64_t frames = 0;        // frames delivered
-    uint64_t bits = 0;          // wire bits of those frames (including retransmissions)
-    uint64_t error_frames = 0;  // transmission attempts destroyed by injected corruption
-    uint64_t dropped = 0;       // frames dropped by fault injection
-    Duration busy{0};           // time the wire was occupied (bit-rate model only)
-    Duration elapsed{0};        // time since construction or ResetStatistics()
-    double load() const {       // busy / elapsed, 0..1
+    uint64_t frames = 0;          // frames delivered
+    uint64_t bits = 0;            // wire bits of those frames (including retransmissions)
+    uint64_t error_frames = 0;    // transmission attempts destroyed by injected corruption
+    uint64_t dropped = 0;         // frames dropped by fault injection
+    common::Duration busy{0};     // time the wire was occupied (bit-rate model only)
+    common::Duration elapsed{0};  // time since construction or ResetStatistics()
+    double load() const {         // busy / elapsed, 0..1
       return elapsed.count() > 0 ? static_cast<double>(busy.count()) / elapsed.count() : 0.0;
     }
   };
@@ -79,7 +79,7 @@ class VirtualCanNetwork : public std::enable_shared_from_this<VirtualCanNetwork>
 
   const std::string& name() const { return name_; }
   int bitrate() const { return options_.bitrate; }
-  Clock& clock() const { return *clock_; }
+  common::Clock& clock() const { return *clock_; }
 
   void SetFaults(const Faults& faults);
   Statistics statistics() const;
@@ -90,36 +90,36 @@ class VirtualCanNetwork : public std::enable_shared_from_this<VirtualCanNetwork>
   struct Pending {
     CanFrame frame;
     VirtualCanBus* sender;
-    Duration submitted;
+    common::Duration submitted;
     uint64_t sequence;  // tie-break: first come, first served among equal ids
   };
   struct InFlight {
     CanFrame frame;
     VirtualCanBus* sender;
-    Duration deliver_at;
+    common::Duration deliver_at;
   };
 
   // All below require mutex_ held.
-  void PumpLocked(Duration now);
-  void DeliverLocked(const CanFrame& frame, VirtualCanBus* sender, Duration at);
+  void PumpLocked(common::Duration now);
+  void DeliverLocked(const CanFrame& frame, VirtualCanBus* sender, common::Duration at);
   void AbandonPendingLocked(VirtualCanBus* node);
   void Detach(VirtualCanBus* node);
 
   const std::string name_;
   const Options options_;
-  Clock* clock_;
+  common::Clock* clock_;
   mutable std::mutex mutex_;
   std::vector<VirtualCanBus*> nodes_;
   std::vector<Pending> pending_;    // waiting for the wire (bit-rate model or delay)
   std::deque<InFlight> in_flight_;  // sent, delivered at deliver_at
-  Duration bus_free_at_{0};
+  common::Duration bus_free_at_{0};
   uint64_t sequence_ = 0;
   int node_count_ = 0;
   Faults faults_;
   bool faults_active_ = false;
   std::mt19937 rng_;
   Statistics stats_;
-  Duration stats_start_{0};
+  common::Duration stats_start_{0};
 };
 
 class VirtualCanBus final : public CanBus {
@@ -150,8 +150,8 @@ class VirtualCanBus final : public CanBus {
 
   // All below require the network mutex held.
   void EnqueueLocked(const CanFrame& frame);
-  void RaiseLocked(CanErrorKind kind, Duration at, std::string detail);
-  void AdjustCountersLocked(int tec_delta, int rec_delta, Duration at);
+  void RaiseLocked(CanErrorKind kind, common::Duration at, std::string detail);
+  void AdjustCountersLocked(int tec_delta, int rec_delta, common::Duration at);
   bool PassesFiltersLocked(const CanFrame& frame) const;
 
   std::shared_ptr<VirtualCanNetwork> network_;

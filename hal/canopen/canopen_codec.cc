@@ -1,7 +1,8 @@
 #include "hal/canopen/canopen_codec.h"
 
-#include <cassert>
 #include <cstring>
+
+#include "common/check.h"
 
 namespace kinevis::hal::canopen {
 namespace {
@@ -32,7 +33,7 @@ CanFrame SdoFrame(uint32_t cob_id) {
 // Segment layout shared by download segment requests and upload segment responses:
 // bit 4 toggle, bits 3..1 n (bytes unused of 7), bit 0 c (last).
 void EncodeSegment(const SdoMessage& m, uint8_t ccs, CanFrame* f) {
-  assert(m.data_length <= 7);
+  KINEVIS_DEMAND(m.data_length <= 7);
   f->data[0] = static_cast<uint8_t>(ccs << 5 | (m.toggle ? 0x10 : 0) | (7 - m.data_length) << 1 |
                                     (m.last ? 1 : 0));
   std::memcpy(&f->data[1], m.data.data(), m.data_length);
@@ -50,7 +51,7 @@ void DecodeSegment(const CanFrame& f, SdoMessage* m) {
 void EncodeInitiate(const SdoMessage& m, uint8_t cs, CanFrame* f) {
   PutMultiplexer(f, m.index, m.subindex);
   if (m.expedited) {
-    assert(m.size >= 1 && m.size <= 4);
+    KINEVIS_DEMAND(m.size >= 1 && m.size <= 4);
     f->data[0] = static_cast<uint8_t>(cs << 5 | (4 - m.size) << 2 | 0x02 | 0x01);
     std::memcpy(&f->data[4], m.data.data(), m.size);
   } else {
@@ -137,7 +138,7 @@ std::optional<NmtMessage> DecodeNmt(const CanFrame& frame) {
 }
 
 CanFrame EncodeHeartbeat(uint8_t node, NmtState state) {
-  assert(node >= 1 && node <= kMaxNodeId);
+  KINEVIS_DEMAND(node >= 1 && node <= kMaxNodeId);
   return CanFrame::Standard(kHeartbeatBase + node, {static_cast<uint8_t>(state)});
 }
 
@@ -160,7 +161,7 @@ bool IsSync(const CanFrame& frame) {
 }
 
 CanFrame EncodeEmcy(const EmcyMessage& emcy) {
-  assert(emcy.node >= 1 && emcy.node <= kMaxNodeId);
+  KINEVIS_DEMAND(emcy.node >= 1 && emcy.node <= kMaxNodeId);
   CanFrame f;
   f.id = kEmcyBase + emcy.node;
   f.dlc = 8;
@@ -240,7 +241,7 @@ std::string EmcyErrorText(uint16_t code) {
 
 SdoMessage SdoMessage::ExpeditedDownload(uint16_t index, uint8_t subindex, const uint8_t* bytes,
                                          uint8_t size) {
-  assert(size >= 1 && size <= 4);
+  KINEVIS_DEMAND(size >= 1 && size <= 4);
   SdoMessage m;
   m.type = SdoType::kInitiateDownloadRequest;
   m.index = index;
@@ -263,7 +264,7 @@ SdoMessage SdoMessage::SegmentedDownload(uint16_t index, uint8_t subindex, uint3
 }
 
 SdoMessage SdoMessage::DownloadSegment(bool toggle, const uint8_t* bytes, uint8_t size, bool last) {
-  assert(size <= 7);
+  KINEVIS_DEMAND(size <= 7);
   SdoMessage m;
   m.type = SdoType::kDownloadSegmentRequest;
   m.toggle = toggle;
@@ -353,7 +354,7 @@ CanFrame EncodeSdoRequest(uint8_t node, const SdoMessage& m) {
       EncodeAbort(m, &f);
       break;
     default:
-      assert(false && "not an SDO request");
+      KINEVIS_UNREACHABLE();  // not an SDO request
   }
   return f;
 }
@@ -378,7 +379,7 @@ CanFrame EncodeSdoResponse(uint8_t node, const SdoMessage& m) {
       EncodeAbort(m, &f);
       break;
     default:
-      assert(false && "not an SDO response");
+      KINEVIS_UNREACHABLE();  // not an SDO response
   }
   return f;
 }

@@ -22,7 +22,7 @@ CanopenMaster::CanopenMaster(std::unique_ptr<CanBus> bus, CanopenMasterOptions o
       options_(options) {
   std::string problems;
   auto problem = [&](const std::string& p) { problems += (problems.empty() ? "" : "; ") + p; };
-  if (bus_ == nullptr) throw ConfigError("CANopen master: no CAN bus");
+  if (bus_ == nullptr) throw common::ConfigError("CANopen master: no CAN bus");
   if (options_.cycle_period.count() <= 0) {
     problem("cycle_period " + std::to_string(options_.cycle_period.count()) + " us must be > 0");
   }
@@ -33,8 +33,9 @@ CanopenMaster::CanopenMaster(std::unique_ptr<CanBus> bus, CanopenMasterOptions o
     problem("sdo.timeout " + std::to_string(options_.sdo.timeout.count()) + " ms must be > 0");
   }
   if (options_.sdo.max_upload_size == 0) problem("sdo.max_upload_size must be > 0");
-  if (options_.sdo.poll_period <= Duration::zero()) problem("sdo.poll_period must be > 0");
-  if (!problems.empty()) throw ConfigError("CANopen master on " + bus_->name() + ": " + problems);
+  if (options_.sdo.poll_period <= common::Duration::zero()) problem("sdo.poll_period must be > 0");
+  if (!problems.empty())
+    throw common::ConfigError("CANopen master on " + bus_->name() + ": " + problems);
   drives_.reserve(kMaxNodeId);
 }
 
@@ -63,8 +64,9 @@ Cia402CanDrive* CanopenMaster::AddDrive(const Cia402CanDriveConfig& config) {
             " ms must exceed heartbeat_producer " + std::to_string(producer) + " ms");
   }
   if (!problems.empty()) {
-    throw ConfigError("CANopen master on " + bus_->name() + ", drive \"" + config.drive.name +
-                      "\" (node " + std::to_string(config.node) + "): " + problems);
+    throw common::ConfigError("CANopen master on " + bus_->name() + ", drive \"" +
+                              config.drive.name + "\" (node " + std::to_string(config.node) +
+                              "): " + problems);
   }
   const std::string name = (config.drive.name.empty() ? std::string("drive") : config.drive.name) +
                            " (" + bus_->name() + " node " + std::to_string(config.node) + ")";
@@ -179,7 +181,7 @@ void CanopenMaster::DrainErrorEvents() {
   CanErrorEvent event;
   while (bus_->TakeErrorEvent(&event)) {
     ++counters_.bus_error_events;
-    const Duration now = clock_->Now();
+    const common::Duration now = clock_->Now();
     if (counters_.bus_error_events == 1 || now - last_error_event_log_ >= kErrorEventLogInterval) {
       last_error_event_log_ = now;
       spdlog::warn("{}: {}: {} ({} bus error events so far)", bus_->name(), ToString(event.kind),
@@ -188,19 +190,19 @@ void CanopenMaster::DrainErrorEvents() {
   }
 }
 
-void CanopenMaster::SuperviseHeartbeats(Duration now) {
+void CanopenMaster::SuperviseHeartbeats(common::Duration now) {
   for (const auto& d : drives_) {
     if (d->SuperviseHeartbeat(now)) ++counters_.heartbeat_losses;
   }
 }
 
-void CanopenMaster::PumpUntil(Duration deadline, const std::function<bool()>& done) {
+void CanopenMaster::PumpUntil(common::Duration deadline, const std::function<bool()>& done) {
   while (!done()) {
     CanFrame frame;
     const std::error_code ec =
         ReceiveFrameUntil(*bus_, *clock_, deadline, &frame, options_.sdo.poll_period);
     if (!ec) Dispatch(frame, false);
-    const Duration now = clock_->Now();
+    const common::Duration now = clock_->Now();
     SuperviseHeartbeats(now);
     if (ec == Errc::kTimeout || (!ec && now >= deadline)) return;  // even when flooded
     if (ec) {
@@ -214,7 +216,7 @@ void CanopenMaster::PumpUntil(Duration deadline, const std::function<bool()>& do
 
 std::error_code CanopenMaster::Cycle() {
   ++counters_.cycles;
-  const Duration start = MarkCycleStart();
+  const common::Duration start = MarkCycleStart();
   DrainReceived();
   DrainErrorEvents();
   SuperviseHeartbeats(start);
@@ -242,8 +244,8 @@ std::error_code CanopenMaster::Cycle() {
   } else {
     ++counters_.syncs;
   }
-  const Duration sync_time = clock_->Now();
-  const Duration deadline = sync_time + options_.cycle_timeout;
+  const common::Duration sync_time = clock_->Now();
+  const common::Duration deadline = sync_time + options_.cycle_timeout;
   collecting_ = true;
   while (outstanding_tpdos_ > 0) {
     CanFrame frame;

@@ -37,10 +37,10 @@
 #include <system_error>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/can/can_bus.h"
 #include "hal/canopen/canopen_codec.h"
 #include "hal/canopen/sdo_client.h"
-#include "hal/common/clock.h"
 #include "hal/drive/cia402_can_drive.h"
 #include "hal/drive/cia402_drive_bus.h"
 #include "hal/drive/motor_drive.h"
@@ -48,7 +48,7 @@
 namespace kinevis::hal::canopen {
 
 struct CanopenMasterOptions {
-  Clock* clock = nullptr;  // nullptr: SteadyClock::Instance()
+  common::Clock* clock = nullptr;  // nullptr: SteadyClock::Instance()
   // Period of the cycles the master runs itself (Configure, Enable, Disable, ...), > 0. The
   // control loop paces its own Cycle() calls.
   std::chrono::microseconds cycle_period{1000};
@@ -104,7 +104,7 @@ class CanopenMaster final : public Cia402DriveBus, public CanFrameSource {
 
   // CanFrameSource: reads and dispatches frames (SDO responses, heartbeats, EMCY, TPDOs) until
   // done() or deadline, supervising the heartbeats meanwhile. No SYNC, no RPDO.
-  void PumpUntil(Duration deadline, const std::function<bool()>& done) override;
+  void PumpUntil(common::Duration deadline, const std::function<bool()>& done) override;
 
   CanBus& bus() const { return *bus_; }
   const CanopenMasterOptions& options() const { return options_; }
@@ -115,7 +115,7 @@ class CanopenMaster final : public Cia402DriveBus, public CanFrameSource {
   void Dispatch(const CanFrame& frame, bool in_cycle);
   void DrainReceived();
   void DrainErrorEvents();
-  void SuperviseHeartbeats(Duration now);
+  void SuperviseHeartbeats(common::Duration now);
 
   std::unique_ptr<CanBus> bus_;
   const CanopenMasterOptions options_;
@@ -124,7 +124,7 @@ class CanopenMaster final : public Cia402DriveBus, public CanFrameSource {
   CanopenMasterCounters counters_;
   int outstanding_tpdos_ = 0;  // during collection: drives that have not sent both TPDOs
   bool collecting_ = false;
-  Duration last_error_event_log_{0};
+  common::Duration last_error_event_log_{0};
 };
 
 }  // namespace kinevis::hal::canopen

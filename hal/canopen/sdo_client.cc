@@ -67,13 +67,13 @@ uint32_t SdoAbortCode(std::error_code ec) {
   return ec.category() == SdoAbortCategory() ? static_cast<uint32_t>(ec.value()) : 0;
 }
 
-std::error_code ReceiveFrameUntil(CanBus& bus, Clock& clock, Duration deadline, CanFrame* frame,
-                                  Duration poll_period) {
-  const bool wall_clock = dynamic_cast<SteadyClock*>(&clock) != nullptr;
+std::error_code ReceiveFrameUntil(CanBus& bus, common::Clock& clock, common::Duration deadline,
+                                  CanFrame* frame, common::Duration poll_period) {
+  const bool wall_clock = dynamic_cast<common::SteadyClock*>(&clock) != nullptr;
   while (true) {
-    const Duration now = clock.Now();
+    const common::Duration now = clock.Now();
     if (wall_clock) {
-      const Duration left = std::max(deadline - now, Duration::zero());
+      const common::Duration left = std::max(deadline - now, common::Duration::zero());
       return bus.Receive(frame, std::chrono::ceil<std::chrono::microseconds>(left));
     }
     std::error_code ec = bus.Receive(frame, std::chrono::microseconds::zero());
@@ -295,7 +295,7 @@ SdoTransfer::Action SdoTransfer::OnDownloadResponse(const SdoMessage& m, CanFram
 // ---------------------------------------------------------------------------------------------
 // SdoClient
 
-SdoClient::SdoClient(CanBus* bus, uint8_t node, Clock* clock, std::string name,
+SdoClient::SdoClient(CanBus* bus, uint8_t node, common::Clock* clock, std::string name,
                      SdoClientOptions options)
     : bus_(bus),
       node_(node),
@@ -313,10 +313,10 @@ SdoClient::SdoClient(CanBus* bus, uint8_t node, Clock* clock, std::string name,
     problems += " timeout " + std::to_string(options_.timeout.count()) + " ms must be > 0;";
   }
   if (options_.max_upload_size == 0) problems += " max_upload_size must be > 0;";
-  if (options_.poll_period <= Duration::zero()) problems += " poll_period must be > 0;";
+  if (options_.poll_period <= common::Duration::zero()) problems += " poll_period must be > 0;";
   if (!problems.empty()) {
     problems.pop_back();
-    throw ConfigError("SDO client " + name_ + ":" + problems);
+    throw common::ConfigError("SDO client " + name_ + ":" + problems);
   }
 }
 
@@ -331,7 +331,7 @@ bool SdoClient::HandleFrame(const CanFrame& frame) {
   return true;
 }
 
-bool SdoClient::WaitForResponse(Duration deadline) {
+bool SdoClient::WaitForResponse(common::Duration deadline) {
   if (source_ != nullptr) {
     source_->PumpUntil(deadline, [this] { return has_response_; });
     return has_response_;
@@ -366,7 +366,7 @@ std::error_code SdoClient::RecordFailure(std::error_code ec, uint32_t abort_code
 
 std::error_code SdoClient::Run(CanFrame request, std::optional<std::chrono::milliseconds> timeout) {
   ++counters_.transfers;
-  const Duration wait = timeout.value_or(options_.timeout);
+  const common::Duration wait = timeout.value_or(options_.timeout);
   // A late answer to an earlier, timed-out transfer must not be taken for this one's.
   has_response_ = false;
   waiting_ = true;

@@ -28,10 +28,10 @@
 #include <type_traits>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/can/can_bus.h"
 #include "hal/can/can_frame.h"
 #include "hal/canopen/canopen_codec.h"
-#include "hal/common/clock.h"
 
 namespace kinevis::hal::canopen {
 
@@ -49,8 +49,9 @@ uint32_t SdoAbortCode(std::error_code ec);
 // simulators while time passes) it polls bus.Receive() without waiting and sleeps on the clock in
 // steps of `poll_period`, so that simulated time moves. Returns {} with *frame filled,
 // Errc::kTimeout at the deadline, or the bus's link error (kClosed, kIo).
-std::error_code ReceiveFrameUntil(CanBus& bus, Clock& clock, Duration deadline, CanFrame* frame,
-                                  Duration poll_period = std::chrono::microseconds(50));
+std::error_code ReceiveFrameUntil(CanBus& bus, common::Clock& clock, common::Duration deadline,
+                                  CanFrame* frame,
+                                  common::Duration poll_period = std::chrono::microseconds(50));
 
 // One SDO transfer as a state machine. Usage: Start*() gives the first request; feed every
 // response (a frame with COB-ID 0x580 + node) to OnResponse() and, when no response came in time,
@@ -139,15 +140,15 @@ class CanFrameSource {
   // Reads received frames and hands each to its consumer (SDO responses to the SdoClient of that
   // node, through HandleFrame()) until `done()` returns true or the source's clock reaches
   // `deadline`. Returns at once when `done()` is already true.
-  virtual void PumpUntil(Duration deadline, const std::function<bool()>& done) = 0;
+  virtual void PumpUntil(common::Duration deadline, const std::function<bool()>& done) = 0;
 };
 
 struct SdoClientOptions {
   // How long the server has to answer each request of a transfer (the initiate request and every
   // segment request), > 0. A transfer of n segments therefore takes at most (n + 1) x timeout.
   std::chrono::milliseconds timeout{500};
-  size_t max_upload_size = 65536;                        // bytes, > 0; see SdoTransfer
-  Duration poll_period = std::chrono::microseconds(50);  // see ReceiveFrameUntil, > 0
+  size_t max_upload_size = 65536;                                // bytes, > 0; see SdoTransfer
+  common::Duration poll_period = std::chrono::microseconds(50);  // see ReceiveFrameUntil, > 0
 };
 
 struct SdoCounters {
@@ -167,7 +168,7 @@ class SdoClient {
   // bus and clock must outlive the client; node 1..127. `name` names the device in every log
   // line and error text ("leg3 (virtual:hexapod node 3)"). Throws ConfigError for a bad node or
   // options.
-  SdoClient(CanBus* bus, uint8_t node, Clock* clock, std::string name,
+  SdoClient(CanBus* bus, uint8_t node, common::Clock* clock, std::string name,
             SdoClientOptions options = {});
 
   // With a source, the client never calls bus->Receive(); nullptr: it reads the bus itself.
@@ -239,12 +240,12 @@ class SdoClient {
   // Sends `request` and runs transfer_ to its end.
   std::error_code Run(CanFrame request, std::optional<std::chrono::milliseconds> timeout);
   // Waits for a response until deadline; true when one is in mailbox_.
-  bool WaitForResponse(Duration deadline);
+  bool WaitForResponse(common::Duration deadline);
   std::error_code RecordFailure(std::error_code ec, uint32_t abort_code, const std::string& cause);
 
   CanBus* bus_;
   uint8_t node_;
-  Clock* clock_;
+  common::Clock* clock_;
   std::string name_;
   SdoClientOptions options_;
   CanFrameSource* source_ = nullptr;

@@ -10,10 +10,10 @@ namespace kinevis::hal {
 namespace {
 
 // Collects every problem with one backend string, then throws them together.
-class Problems : public ConfigProblems {
+class Problems : public common::Problems {
  public:
   explicit Problems(std::string_view text)
-      : ConfigProblems("backend \"" + std::string(text) + "\"") {}
+      : common::Problems("backend \"" + std::string(text) + "\"") {}
 };
 
 bool ParseInt(std::string_view s, long long min, long long max, int* out) {
@@ -48,9 +48,10 @@ Parts SplitBackend(std::string_view text) {
   Parts parts;
   size_t colon = text.find(':');
   if (colon == std::string_view::npos || colon == 0) {
-    throw ConfigError("backend \"" + std::string(text) +
-                      "\": no scheme; expected SCHEME:TARGET with SCHEME one of socketcan, slcan, "
-                      "virtual, tty, modbus-tcp, modbus-rtu (see docs/backends.md)");
+    throw common::ConfigError(
+        "backend \"" + std::string(text) +
+        "\": no scheme; expected SCHEME:TARGET with SCHEME one of socketcan, slcan, "
+        "virtual, tty, modbus-tcp, modbus-rtu (see docs/backends.md)");
   }
   parts.scheme = std::string(text.substr(0, colon));
   std::vector<std::string_view> fields = Split(text.substr(colon + 1), ',');

@@ -11,7 +11,7 @@
 //   modbus-tcp:HOST:PORT[,unit=N][,timeout_ms=N][,retries=N]
 //   modbus-rtu:DEVICE[@BAUD][,8E1][,rs485][,unit=N][,timeout_ms=N][,retries=N]
 //
-// Parsers throw hal::ConfigError naming the backend string, every bad field and its value.
+// Parsers throw common::ConfigError naming the backend string, every bad field and its value.
 
 #include <string>
 #include <string_view>

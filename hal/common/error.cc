@@ -57,16 +57,6 @@ HalError::HalError(std::string device, std::string operation, std::string cause,
       cause_(std::move(cause)),
       code_(code) {}
 
-void ConfigProblems::ThrowIfAny() const {
-  if (messages_.empty()) return;
-  std::string all = subject_ + ": ";
-  for (size_t i = 0; i < messages_.size(); ++i) {
-    if (i > 0) all += "; ";
-    all += messages_[i];
-  }
-  throw ConfigError(all);
-}
-
 std::string ErrnoText(int err) {
   const char* name = strerrorname_np(err);
   std::string text = std::strerror(err);

@@ -3,8 +3,8 @@
 // Errors of the hardware abstraction layer, in the three tiers of STYLE.md:
 //  - run-time faults (timeouts, CRC errors, bus-off, a dropped link) are std::error_code values
 //    of the kinevis::hal::Errc enum, returned from the cyclic calls and never thrown;
-//  - bad input at set-up (a malformed backend string, a bad option) throws ConfigError, which the
-//    CLI maps to exit code 2;
+//  - bad input at set-up (a malformed backend string, a bad option) throws common::ConfigError
+//    (common/config_error.h), which the CLI maps to exit code 2;
 //  - a device that cannot be reached at set-up (no such port, connection refused) throws
 //    HalError, which names the device, the operation and the cause; the CLI maps it to exit 3.
 
@@ -12,6 +12,8 @@
 #include <string>
 #include <system_error>
 #include <vector>
+
+#include "common/config_error.h"
 
 namespace kinevis::hal {
 
@@ -47,27 +49,6 @@ class HalError : public std::runtime_error {
  private:
   std::string device_, operation_, cause_;
   std::error_code code_;
-};
-
-// Thrown at set-up for bad configuration or arguments: names the source, the field and the value.
-class ConfigError : public std::invalid_argument {
- public:
-  explicit ConfigError(const std::string& message) : std::invalid_argument(message) {}
-};
-
-// Collects every problem found in one piece of configuration (a backend string, a file section),
-// then throws them together as one ConfigError: "<subject>: first; second; ...".
-class ConfigProblems {
- public:
-  explicit ConfigProblems(std::string subject) : subject_(std::move(subject)) {}
-  void Add(std::string message) { messages_.push_back(std::move(message)); }
-  bool empty() const { return messages_.empty(); }
-  // Throws ConfigError when any problem was added.
-  void ThrowIfAny() const;
-
- private:
-  std::string subject_;
-  std::vector<std::string> messages_;
 };
 
 // "strerror(errno)" with the errno name, for messages: "No such file or directory (ENOENT)".

@@ -31,7 +31,7 @@ std::string ErrorCodeText(uint16_t code) {
   return Hex(code, 4) + " (" + canopen::EmcyErrorText(code) + ")";
 }
 
-std::string Milliseconds(Duration d) {
+std::string Milliseconds(common::Duration d) {
   return std::to_string(std::chrono::duration_cast<std::chrono::milliseconds>(d).count()) + " ms";
 }
 
@@ -117,7 +117,7 @@ void Cia402HostDrive::SetError(const std::string& cause, int level) {
 
 void Cia402HostDrive::SetConfigured(DriveIdentity identity) {
   identity_ = std::move(identity);
-  lifecycle_ = DeviceLifecycle::kConfigured;
+  lifecycle_ = common::DeviceLifecycle::kConfigured;
   goal_ = S::kSwitchOnDisabled;
   allow_fault_reset_ = false;
   fault_word_ = 0x00;
@@ -131,7 +131,7 @@ void Cia402HostDrive::SetConfigured(DriveIdentity identity) {
 }
 
 void Cia402HostDrive::SetUnconfigured() {
-  lifecycle_ = DeviceLifecycle::kUnconfigured;
+  lifecycle_ = common::DeviceLifecycle::kUnconfigured;
   goal_ = S::kSwitchOnDisabled;
   allow_fault_reset_ = false;
   state_known_ = false;
@@ -158,8 +158,8 @@ std::error_code Cia402HostDrive::FaultError() const {
 void Cia402HostDrive::EnterFault(DriveFaultSource source, uint16_t error_code,
                                  const std::string& cause) {
   if (error_code != 0) status_.error_code = error_code;
-  const bool already = lifecycle_ == DeviceLifecycle::kFault;
-  lifecycle_ = DeviceLifecycle::kFault;
+  const bool already = lifecycle_ == common::DeviceLifecycle::kFault;
+  lifecycle_ = common::DeviceLifecycle::kFault;
   if (!already) {
     status_.fault_source = source;
     // Link fault: the drive may still listen, so ask for a quick stop; device fault: the drive
@@ -184,7 +184,7 @@ bool Cia402HostDrive::TakeNewFault() {
 void Cia402HostDrive::OnLinkLost(const std::string& cause) {
   link_lost_ = true;
   ++counters_.link_losses;
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     SetError("link lost: " + cause, spdlog::level::warn);
     return;
   }
@@ -194,12 +194,13 @@ void Cia402HostDrive::OnLinkLost(const std::string& cause) {
 void Cia402HostDrive::OnLinkRestored() {
   if (!link_lost_) return;
   link_lost_ = false;
-  spdlog::info("{}: link back{}", name_,
-               lifecycle_ == DeviceLifecycle::kFault ? "; FaultReset() clears the fault" : "");
+  spdlog::info(
+      "{}: link back{}", name_,
+      lifecycle_ == common::DeviceLifecycle::kFault ? "; FaultReset() clears the fault" : "");
 }
 
 void Cia402HostDrive::OnDeviceFault(uint16_t error_code, const std::string& cause) {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     SetError(cause, spdlog::level::warn);
     return;
   }
@@ -207,8 +208,8 @@ void Cia402HostDrive::OnDeviceFault(uint16_t error_code, const std::string& caus
 }
 
 void Cia402HostDrive::SafeStop(const std::string& reason) {
-  if (lifecycle_ != DeviceLifecycle::kActive) return;
-  lifecycle_ = DeviceLifecycle::kConfigured;
+  if (lifecycle_ != common::DeviceLifecycle::kActive) return;
+  lifecycle_ = common::DeviceLifecycle::kConfigured;
   goal_ = S::kQuickStopActive;
   pp_request_ = false;
   SetError("quick stop: " + reason, spdlog::level::warn);
@@ -222,7 +223,7 @@ uint16_t Cia402HostDrive::NextControlword() {
                ? Cia402Controlword(Cia402Command::kDisableVoltage)
                : Cia402Controlword(Cia402Command::kFaultReset);
   }
-  if (lifecycle_ == DeviceLifecycle::kFault && !allow_fault_reset_) return fault_word_;
+  if (lifecycle_ == common::DeviceLifecycle::kFault && !allow_fault_reset_) return fault_word_;
   if (!state_known_) return Cia402Controlword(Cia402Command::kDisableVoltage);
   const S state = status_.state;
   if (state == S::kFault) {
@@ -261,7 +262,8 @@ uint16_t Cia402HostDrive::NextControlword() {
 void Cia402HostDrive::ComposeOutputs(ProcessOutputs* out) {
   fresh_ = false;
   const bool enabled = state_known_ && status_.state == S::kOperationEnabled &&
-                       goal_ == S::kOperationEnabled && lifecycle_ != DeviceLifecycle::kFault;
+                       goal_ == S::kOperationEnabled &&
+                       lifecycle_ != common::DeviceLifecycle::kFault;
   // While not enabled the targets follow the drive, so that enabling a cyclic mode does not jump.
   if (!enabled) HoldTargets();
   last_controlword_ = NextControlword();
@@ -272,7 +274,8 @@ void Cia402HostDrive::ComposeOutputs(ProcessOutputs* out) {
   out->target_torque = target_torque_;
 }
 
-void Cia402HostDrive::ApplyInputs(const ProcessInputs& in, Duration timestamp, uint64_t cycle) {
+void Cia402HostDrive::ApplyInputs(const ProcessInputs& in, common::Duration timestamp,
+                                  uint64_t cycle) {
   fresh_ = true;
   ++counters_.cycles;
   actual_position_counts_ = in.position;
@@ -282,7 +285,7 @@ void Cia402HostDrive::ApplyInputs(const ProcessInputs& in, Duration timestamp, u
   status_.velocity = in.velocity / options_.scaling.velocity_counts_per_unit;
   status_.torque = in.torque / options_.scaling.torque_per_mille_per_unit;
   // An EMCY may have brought the code before the drive's 0x603F shows it.
-  if (in.error_code != 0 || lifecycle_ != DeviceLifecycle::kFault) {
+  if (in.error_code != 0 || lifecycle_ != common::DeviceLifecycle::kFault) {
     status_.error_code = in.error_code;
   }
   status_.target_reached = (in.statusword & cia402::kSwTargetReached) != 0;
@@ -299,7 +302,8 @@ void Cia402HostDrive::ApplyInputs(const ProcessInputs& in, Duration timestamp, u
   status_.state = *state;
   state_known_ = true;
   if (allow_fault_reset_ && !IsFaultState(*state)) allow_fault_reset_ = false;  // reset done
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured || lifecycle_ == DeviceLifecycle::kFault) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured ||
+      lifecycle_ == common::DeviceLifecycle::kFault) {
     return;
   }
   if (IsFaultState(*state)) {
@@ -311,7 +315,7 @@ void Cia402HostDrive::ApplyInputs(const ProcessInputs& in, Duration timestamp, u
     }
     return;
   }
-  if (lifecycle_ == DeviceLifecycle::kActive && *state != S::kOperationEnabled) {
+  if (lifecycle_ == common::DeviceLifecycle::kActive && *state != S::kOperationEnabled) {
     EnterFault(DriveFaultSource::kDevice, in.error_code,
                "the drive left 'Operation enabled' for '" + std::string(ToString(*state)) +
                    "' without a command from the host (statusword " + Hex(in.statusword, 4) + ")");
@@ -321,11 +325,11 @@ void Cia402HostDrive::ApplyInputs(const ProcessInputs& in, Duration timestamp, u
 // ---- Enable
 
 std::error_code Cia402HostDrive::BeginEnable(bool reset_fault) {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     SetError("enable refused: not configured", spdlog::level::warn);
     return Errc::kNotActive;
   }
-  if (lifecycle_ == DeviceLifecycle::kFault) {
+  if (lifecycle_ == common::DeviceLifecycle::kFault) {
     if (!reset_fault) {
       SetError(
           "enable refused: the drive is in fault (" +
@@ -335,7 +339,7 @@ std::error_code Cia402HostDrive::BeginEnable(bool reset_fault) {
       return FaultError();
     }
     if (std::error_code ec = RestoreLink()) return ec;
-    lifecycle_ = DeviceLifecycle::kConfigured;
+    lifecycle_ = common::DeviceLifecycle::kConfigured;
     status_.fault_source = DriveFaultSource::kNone;
   }
   allow_fault_reset_ = reset_fault;
@@ -344,24 +348,25 @@ std::error_code Cia402HostDrive::BeginEnable(bool reset_fault) {
 }
 
 bool Cia402HostDrive::EnableSettled() const {
-  if (lifecycle_ == DeviceLifecycle::kFault || lifecycle_ == DeviceLifecycle::kActive) {
+  if (lifecycle_ == common::DeviceLifecycle::kFault ||
+      lifecycle_ == common::DeviceLifecycle::kActive) {
     return true;
   }
   return fresh_ && status_.state == S::kOperationEnabled;
 }
 
-std::error_code Cia402HostDrive::FinishEnable(Duration started) {
-  if (lifecycle_ == DeviceLifecycle::kActive) return {};
-  if (lifecycle_ != DeviceLifecycle::kFault && fresh_ && status_.state == S::kOperationEnabled &&
-      goal_ == S::kOperationEnabled) {
-    lifecycle_ = DeviceLifecycle::kActive;
+std::error_code Cia402HostDrive::FinishEnable(common::Duration started) {
+  if (lifecycle_ == common::DeviceLifecycle::kActive) return {};
+  if (lifecycle_ != common::DeviceLifecycle::kFault && fresh_ &&
+      status_.state == S::kOperationEnabled && goal_ == S::kOperationEnabled) {
+    lifecycle_ = common::DeviceLifecycle::kActive;
     allow_fault_reset_ = false;
     spdlog::info("{}: operation enabled, {}", name_, ToString(mode_));
     return {};
   }
   allow_fault_reset_ = false;
   goal_ = S::kSwitchOnDisabled;
-  if (lifecycle_ == DeviceLifecycle::kFault) return FaultError();
+  if (lifecycle_ == common::DeviceLifecycle::kFault) return FaultError();
   const std::string waited = Milliseconds(clock().Now() - started);
   if (state_known_ && IsFaultState(status_.state)) {
     EnterFault(DriveFaultSource::kDevice, status_.error_code,
@@ -377,8 +382,8 @@ std::error_code Cia402HostDrive::FinishEnable(Duration started) {
 }
 
 std::error_code Cia402HostDrive::Enable(std::chrono::milliseconds timeout, bool reset_fault) {
-  if (lifecycle_ == DeviceLifecycle::kActive) return {};
-  const Duration started = clock().Now();
+  if (lifecycle_ == common::DeviceLifecycle::kActive) return {};
+  const common::Duration started = clock().Now();
   if (std::error_code ec = BeginEnable(reset_fault)) return ec;
   RunCyclesUntil(started + timeout, [this] { return EnableSettled(); });
   std::error_code ec = FinishEnable(started);
@@ -390,7 +395,7 @@ std::error_code Cia402HostDrive::Enable(std::chrono::milliseconds timeout, bool 
 // ---- Disable
 
 std::error_code Cia402HostDrive::BeginDisable() {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     SetError("disable refused: not configured", spdlog::level::warn);
     return Errc::kNotActive;
   }
@@ -398,7 +403,8 @@ std::error_code Cia402HostDrive::BeginDisable() {
   allow_fault_reset_ = false;
   fault_word_ = Cia402Controlword(Cia402Command::kDisableVoltage);
   pp_request_ = false;
-  if (lifecycle_ == DeviceLifecycle::kActive) lifecycle_ = DeviceLifecycle::kConfigured;
+  if (lifecycle_ == common::DeviceLifecycle::kActive)
+    lifecycle_ = common::DeviceLifecycle::kConfigured;
   return {};
 }
 
@@ -430,17 +436,18 @@ std::error_code Cia402HostDrive::Disable() {
 // ---- Quick stop
 
 std::error_code Cia402HostDrive::BeginQuickStop() {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     SetError("quick stop refused: not configured", spdlog::level::warn);
     return Errc::kNotActive;
   }
   goal_ = S::kQuickStopActive;
   allow_fault_reset_ = false;
   pp_request_ = false;
-  if (lifecycle_ == DeviceLifecycle::kFault) {
+  if (lifecycle_ == common::DeviceLifecycle::kFault) {
     fault_word_ = Cia402Controlword(Cia402Command::kQuickStop);
   }
-  if (lifecycle_ == DeviceLifecycle::kActive) lifecycle_ = DeviceLifecycle::kConfigured;
+  if (lifecycle_ == common::DeviceLifecycle::kActive)
+    lifecycle_ = common::DeviceLifecycle::kConfigured;
   return {};
 }
 
@@ -469,28 +476,30 @@ std::error_code Cia402HostDrive::QuickStop() {
 
 std::error_code Cia402HostDrive::BeginFaultReset(bool* nothing_to_do) {
   *nothing_to_do = false;
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     SetError("fault reset refused: not configured", spdlog::level::warn);
     return Errc::kNotActive;
   }
-  if (lifecycle_ != DeviceLifecycle::kFault && !(state_known_ && IsFaultState(status_.state))) {
+  if (lifecycle_ != common::DeviceLifecycle::kFault &&
+      !(state_known_ && IsFaultState(status_.state))) {
     *nothing_to_do = true;
     return {};
   }
   if (std::error_code ec = RestoreLink()) return ec;
   allow_fault_reset_ = true;
   goal_ = S::kSwitchOnDisabled;
-  if (lifecycle_ == DeviceLifecycle::kFault) lifecycle_ = DeviceLifecycle::kConfigured;
+  if (lifecycle_ == common::DeviceLifecycle::kFault)
+    lifecycle_ = common::DeviceLifecycle::kConfigured;
   status_.fault_source = DriveFaultSource::kNone;
   return {};
 }
 
 bool Cia402HostDrive::FaultResetSettled() const {
-  return lifecycle_ == DeviceLifecycle::kFault || (fresh_ && !IsFaultState(status_.state));
+  return lifecycle_ == common::DeviceLifecycle::kFault || (fresh_ && !IsFaultState(status_.state));
 }
 
 std::error_code Cia402HostDrive::FinishFaultReset() {
-  if (lifecycle_ == DeviceLifecycle::kFault) return FaultError();  // a new fault meanwhile
+  if (lifecycle_ == common::DeviceLifecycle::kFault) return FaultError();  // a new fault meanwhile
   if (fresh_ && !IsFaultState(status_.state)) {
     allow_fault_reset_ = false;
     spdlog::info("{}: fault reset, now '{}'", name_, ToString(status_.state));
@@ -516,12 +525,12 @@ std::error_code Cia402HostDrive::FaultReset() {
 std::error_code Cia402HostDrive::SendCommand(Cia402Command command,
                                              std::chrono::milliseconds timeout,
                                              Cia402State* reached) {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     SetError(std::string("command '") + ToString(command) + "' refused: not configured",
              spdlog::level::warn);
     return Errc::kNotActive;
   }
-  const Duration started = clock().Now();
+  const common::Duration started = clock().Now();
   if (!state_known_ || !fresh_) {
     RunCyclesUntil(started + timeout, [this] { return state_known_ && fresh_; });
   }
@@ -531,11 +540,12 @@ std::error_code Cia402HostDrive::SendCommand(Cia402Command command,
     return Errc::kTimeout;
   }
   const S from = status_.state;
-  if (lifecycle_ == DeviceLifecycle::kActive) lifecycle_ = DeviceLifecycle::kConfigured;
+  if (lifecycle_ == common::DeviceLifecycle::kActive)
+    lifecycle_ = common::DeviceLifecycle::kConfigured;
   if (command == Cia402Command::kFaultReset) {
     allow_fault_reset_ = true;
-    if (lifecycle_ == DeviceLifecycle::kFault) {
-      lifecycle_ = DeviceLifecycle::kConfigured;
+    if (lifecycle_ == common::DeviceLifecycle::kFault) {
+      lifecycle_ = common::DeviceLifecycle::kConfigured;
       status_.fault_source = DriveFaultSource::kNone;
     }
   }
@@ -543,15 +553,15 @@ std::error_code Cia402HostDrive::SendCommand(Cia402Command command,
   forced_command_ = command;
   forcing_ = true;
   const bool changed = RunCyclesUntil(started + timeout, [this, from] {
-    return lifecycle_ == DeviceLifecycle::kFault || (fresh_ && status_.state != from);
+    return lifecycle_ == common::DeviceLifecycle::kFault || (fresh_ && status_.state != from);
   });
   forcing_ = false;
   allow_fault_reset_ = false;
   const S now = status_.state;
   goal_ = IsFaultState(now) ? S::kSwitchOnDisabled : now;
   if (reached != nullptr) *reached = now;
-  if (lifecycle_ == DeviceLifecycle::kFault) return FaultError();
-  if (now == S::kOperationEnabled) lifecycle_ = DeviceLifecycle::kActive;
+  if (lifecycle_ == common::DeviceLifecycle::kFault) return FaultError();
+  if (now == S::kOperationEnabled) lifecycle_ = common::DeviceLifecycle::kActive;
   if (!changed) {
     SetError(std::string("command '") + ToString(command) + "' left the drive in '" +
                  ToString(now) + "' for " + Milliseconds(clock().Now() - started),
@@ -565,7 +575,8 @@ std::error_code Cia402HostDrive::SendCommand(Cia402Command command,
 // ---- Mode and targets (cyclic path: no I/O, no allocation)
 
 std::error_code Cia402HostDrive::SetMode(DriveMode mode) {
-  if (lifecycle_ != DeviceLifecycle::kConfigured && lifecycle_ != DeviceLifecycle::kActive) {
+  if (lifecycle_ != common::DeviceLifecycle::kConfigured &&
+      lifecycle_ != common::DeviceLifecycle::kActive) {
     return Errc::kNotActive;
   }
   if (!DriveModeFromValue(static_cast<int>(mode))) return Errc::kInvalidArgument;
@@ -580,7 +591,7 @@ std::error_code Cia402HostDrive::SetMode(DriveMode mode) {
 std::error_code Cia402HostDrive::CheckedCounts(double value, double scale, double lo, double hi,
                                                int64_t type_min, int64_t type_max,
                                                int64_t* counts) const {
-  if (lifecycle_ != DeviceLifecycle::kActive) return Errc::kNotActive;
+  if (lifecycle_ != common::DeviceLifecycle::kActive) return Errc::kNotActive;
   if (!Finite(value) || value < lo || value > hi) return Errc::kInvalidArgument;
   const double c = std::round(value * scale);
   if (!(c >= static_cast<double>(type_min) && c <= static_cast<double>(type_max))) {
@@ -641,9 +652,9 @@ Cia402CanDrive::Cia402CanDrive(canopen::CanopenMaster* master, Cia402CanDriveCon
 
 Cia402CanDrive::~Cia402CanDrive() = default;
 
-Clock& Cia402CanDrive::clock() const { return master_->clock(); }
+common::Clock& Cia402CanDrive::clock() const { return master_->clock(); }
 
-bool Cia402CanDrive::RunCyclesUntil(Duration deadline, const std::function<bool()>& done) {
+bool Cia402CanDrive::RunCyclesUntil(common::Duration deadline, const std::function<bool()>& done) {
   return master_->RunCyclesUntil(deadline, done);
 }
 
@@ -818,7 +829,7 @@ void Cia402CanDrive::Configure() {
   heartbeat_lost_ = false;
   seen_operational_ = false;
   last_heartbeat_ = clock().Now();
-  const Duration started = clock().Now();
+  const common::Duration started = clock().Now();
   if (!RunCyclesUntil(started + options().command_timeout, [this] { return inputs_fresh(); })) {
     pdo_active_ = false;
     heartbeat_supervised_ = false;
@@ -908,20 +919,20 @@ bool Cia402CanDrive::OnTpdo(int pdo, const CanFrame& f) {
   return true;
 }
 
-void Cia402CanDrive::OnHeartbeat(canopen::NmtState state, Duration now) {
+void Cia402CanDrive::OnHeartbeat(canopen::NmtState state, common::Duration now) {
   using canopen::NmtState;
   nmt_state_ = state;
   last_heartbeat_ = now;
   heartbeat_lost_ = false;
   if (state == NmtState::kBootUp) {
-    if (lifecycle() != DeviceLifecycle::kUnconfigured && !needs_configure_) {
+    if (lifecycle() != common::DeviceLifecycle::kUnconfigured && !needs_configure_) {
       needs_configure_ = true;
       pdo_active_ = false;
       OnLinkLost("the node rebooted (boot-up message); its configuration is lost");
     }
     return;
   }
-  if (needs_configure_ || lifecycle() == DeviceLifecycle::kUnconfigured) return;
+  if (needs_configure_ || lifecycle() == common::DeviceLifecycle::kUnconfigured) return;
   if (state == NmtState::kOperational) {
     seen_operational_ = true;
     if (link_lost()) OnLinkRestored();
@@ -943,9 +954,9 @@ void Cia402CanDrive::OnEmergency(const canopen::EmcyMessage& emcy) {
                 "EMCY " + ErrorCodeText(emcy.error_code) + ", error register " + registers);
 }
 
-bool Cia402CanDrive::SuperviseHeartbeat(Duration now) {
+bool Cia402CanDrive::SuperviseHeartbeat(common::Duration now) {
   if (!heartbeat_supervised_ || heartbeat_lost_ || needs_configure_) return false;
-  const Duration silent = now - last_heartbeat_;
+  const common::Duration silent = now - last_heartbeat_;
   if (silent <= consumer_time_) return false;
   heartbeat_lost_ = true;
   const std::string cause = "heartbeat lost: none for " + Milliseconds(silent) +

@@ -36,10 +36,10 @@
 #include <system_error>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/can/can_frame.h"
 #include "hal/canopen/canopen_codec.h"
 #include "hal/canopen/sdo_client.h"
-#include "hal/common/clock.h"
 #include "hal/drive/cia402.h"
 #include "hal/drive/motor_drive.h"
 
@@ -98,7 +98,7 @@ std::string SupportedModesText(uint32_t supported_modes);
 class Cia402HostDrive : public MotorDrive {
  public:
   const std::string& name() const override { return name_; }
-  DeviceLifecycle lifecycle() const override { return lifecycle_; }
+  common::DeviceLifecycle lifecycle() const override { return lifecycle_; }
 
   std::error_code Enable(std::chrono::milliseconds timeout, bool reset_fault = false) override;
   std::error_code Disable() override;
@@ -158,8 +158,8 @@ class Cia402HostDrive : public MotorDrive {
   // ---- transport hooks
   // Runs bus cycles at the bus's period until done() or the clock passes deadline; at least one.
   // Returns done().
-  virtual bool RunCyclesUntil(Duration deadline, const std::function<bool()>& done) = 0;
-  virtual Clock& clock() const = 0;
+  virtual bool RunCyclesUntil(common::Duration deadline, const std::function<bool()>& done) = 0;
+  virtual common::Clock& clock() const = 0;
   // Before a fault reset: make the link usable again (CANopen: heartbeat present, NMT start).
   // Returns {} or the reason it cannot (and sets the error text through SetError).
   virtual std::error_code RestoreLink() = 0;
@@ -169,7 +169,7 @@ class Cia402HostDrive : public MotorDrive {
   // until; Finish*() decides the outcome once the cycles stopped.
   std::error_code BeginEnable(bool reset_fault);
   bool EnableSettled() const;
-  std::error_code FinishEnable(Duration started);
+  std::error_code FinishEnable(common::Duration started);
   std::error_code BeginDisable();
   bool DisableSettled() const;
   std::error_code FinishDisable();
@@ -184,7 +184,7 @@ class Cia402HostDrive : public MotorDrive {
   // The outputs of the coming cycle; also marks the inputs as not yet fresh.
   void ComposeOutputs(ProcessOutputs* out);
   // Inputs received in this cycle.
-  void ApplyInputs(const ProcessInputs& in, Duration timestamp, uint64_t cycle);
+  void ApplyInputs(const ProcessInputs& in, common::Duration timestamp, uint64_t cycle);
   // The host lost the drive (heartbeat, link): fault with DriveFaultSource::kLink.
   void OnLinkLost(const std::string& cause);
   // The link works again; the drive stays in fault until FaultReset().
@@ -217,7 +217,7 @@ class Cia402HostDrive : public MotorDrive {
 
   const std::string name_;
   const Cia402DriveOptions options_;
-  DeviceLifecycle lifecycle_ = DeviceLifecycle::kUnconfigured;
+  common::DeviceLifecycle lifecycle_ = common::DeviceLifecycle::kUnconfigured;
   DriveStatus status_;
   bool fresh_ = false;  // inputs arrived in the current cycle
   bool state_known_ = false;
@@ -273,8 +273,8 @@ class Cia402CanDrive final : public Cia402HostDrive {
   friend class canopen::CanopenMaster;
   Cia402CanDrive(canopen::CanopenMaster* master, Cia402CanDriveConfig config, std::string name);
 
-  bool RunCyclesUntil(Duration deadline, const std::function<bool()>& done) override;
-  Clock& clock() const override;
+  bool RunCyclesUntil(common::Duration deadline, const std::function<bool()>& done) override;
+  common::Clock& clock() const override;
   std::error_code RestoreLink() override;
 
   // Configure() steps; each throws HalError on failure.
@@ -291,10 +291,10 @@ class Cia402CanDrive final : public Cia402HostDrive {
   void EncodeRpdos(CanFrame* rpdo1, CanFrame* rpdo2);
   // A TPDO (0 or 1) arrived; false when its length does not fit the mapping.
   bool OnTpdo(int pdo, const CanFrame& frame);
-  void OnHeartbeat(canopen::NmtState state, Duration now);
+  void OnHeartbeat(canopen::NmtState state, common::Duration now);
   void OnEmergency(const canopen::EmcyMessage& emcy);
   // Heartbeat supervision at `now`; true when the heartbeat was lost just now.
-  bool SuperviseHeartbeat(Duration now);
+  bool SuperviseHeartbeat(common::Duration now);
 
   canopen::CanopenMaster* const master_;
   const Cia402CanDriveConfig config_;
@@ -311,7 +311,7 @@ class Cia402CanDrive final : public Cia402HostDrive {
   // An operational heartbeat came since NMT start: only then does a heartbeat with another
   // state mean the node left Operational (one sent before the start may still be on its way).
   bool seen_operational_ = false;
-  Duration last_heartbeat_{0};
+  common::Duration last_heartbeat_{0};
   std::optional<canopen::NmtState> nmt_state_;
   bool needs_configure_ = false;  // the node rebooted: its configuration is gone
 };

@@ -6,13 +6,13 @@
 
 namespace kinevis::hal {
 
-Cia402DriveBus::Cia402DriveBus(Clock* clock, std::chrono::microseconds cycle_period,
+Cia402DriveBus::Cia402DriveBus(common::Clock* clock, std::chrono::microseconds cycle_period,
                                bool quick_stop_all_on_fault)
-    : clock_(clock != nullptr ? clock : &SteadyClock::Instance()),
+    : clock_(clock != nullptr ? clock : &common::SteadyClock::Instance()),
       cycle_period_(cycle_period),
       quick_stop_all_on_fault_(quick_stop_all_on_fault) {}
 
-Duration Cia402DriveBus::MarkCycleStart() {
+common::Duration Cia402DriveBus::MarkCycleStart() {
   last_cycle_start_ = clock_->Now();
   cycled_ = true;
   return last_cycle_start_;
@@ -25,14 +25,14 @@ std::error_code Cia402DriveBus::FinishCycle(std::error_code result) {
   }
   if (faulted != nullptr && quick_stop_all_on_fault_) {
     for (Cia402HostDrive* d : group_) {
-      if (d != faulted && d->lifecycle() == DeviceLifecycle::kActive) {
+      if (d != faulted && d->lifecycle() == common::DeviceLifecycle::kActive) {
         d->SafeStop(faulted->name() + " faulted");
       }
     }
   }
   if (result) return result;
   for (Cia402HostDrive* d : group_) {
-    if (d->lifecycle() == DeviceLifecycle::kFault) {
+    if (d->lifecycle() == common::DeviceLifecycle::kFault) {
       return d->status().fault_source == DriveFaultSource::kLink
                  ? make_error_code(Errc::kTimeout)
                  : make_error_code(Errc::kDeviceFault);
@@ -41,10 +41,10 @@ std::error_code Cia402DriveBus::FinishCycle(std::error_code result) {
   return {};
 }
 
-bool Cia402DriveBus::RunCyclesUntil(Duration deadline, const std::function<bool()>& done) {
+bool Cia402DriveBus::RunCyclesUntil(common::Duration deadline, const std::function<bool()>& done) {
   while (true) {
-    const Duration now = clock_->Now();
-    const Duration next = cycled_ ? last_cycle_start_ + cycle_period_ : now;
+    const common::Duration now = clock_->Now();
+    const common::Duration next = cycled_ ? last_cycle_start_ + cycle_period_ : now;
     if (next > now) clock_->SleepUntil(next);
     Cycle();
     if (done()) return true;
@@ -57,11 +57,11 @@ void Cia402DriveBus::ConfigureAll() {
 }
 
 std::error_code Cia402DriveBus::EnableAll(std::chrono::milliseconds timeout, bool reset_fault) {
-  const Duration started = clock_->Now();
+  const common::Duration started = clock_->Now();
   std::error_code first;
   std::vector<Cia402HostDrive*> enabling;
   for (Cia402HostDrive* d : group_) {
-    if (d->lifecycle() == DeviceLifecycle::kActive) continue;
+    if (d->lifecycle() == common::DeviceLifecycle::kActive) continue;
     if (std::error_code ec = d->BeginEnable(reset_fault)) {
       if (!first) first = ec;
       continue;
@@ -89,7 +89,7 @@ std::error_code Cia402DriveBus::DisableAll() {
   std::vector<Cia402HostDrive*> disabling;
   std::chrono::milliseconds timeout{0};
   for (Cia402HostDrive* d : group_) {
-    if (d->lifecycle() == DeviceLifecycle::kUnconfigured) continue;
+    if (d->lifecycle() == common::DeviceLifecycle::kUnconfigured) continue;
     if (std::error_code ec = d->BeginDisable()) {
       if (!first) first = ec;
       continue;

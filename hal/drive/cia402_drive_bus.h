@@ -12,7 +12,7 @@
 #include <system_error>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/drive/cia402_can_drive.h"
 #include "hal/drive/motor_drive.h"
 
@@ -20,7 +20,7 @@ namespace kinevis::hal {
 
 class Cia402DriveBus : public DriveBus {
  public:
-  Clock& clock() const { return *clock_; }
+  common::Clock& clock() const { return *clock_; }
 
   // Configure() on every drive, in the order they were added. Throws as Configure() does.
   void ConfigureAll();
@@ -31,28 +31,28 @@ class Cia402DriveBus : public DriveBus {
   std::error_code DisableAll();
   // Runs cycles every cycle period until done() returns true or the clock passes `deadline`;
   // at least one cycle. Returns done().
-  bool RunCyclesUntil(Duration deadline, const std::function<bool()>& done);
+  bool RunCyclesUntil(common::Duration deadline, const std::function<bool()>& done);
 
  protected:
   // clock: nullptr = SteadyClock::Instance(). cycle_period > 0 (validated by the derived bus).
-  Cia402DriveBus(Clock* clock, std::chrono::microseconds cycle_period,
+  Cia402DriveBus(common::Clock* clock, std::chrono::microseconds cycle_period,
                  bool quick_stop_all_on_fault);
 
   void AddToGroup(Cia402HostDrive* drive) { group_.push_back(drive); }
   // Start of a cycle: returns its time, from which RunCyclesUntil paces the next one.
-  Duration MarkCycleStart();
+  common::Duration MarkCycleStart();
   // End of a cycle: applies the quick-stop policy (a drive that faulted in this cycle
   // quick-stops the other active drives), then returns `result`, or, when that is {}, the error
   // of a drive in fault (Errc::kTimeout for a link fault, Errc::kDeviceFault otherwise).
   std::error_code FinishCycle(std::error_code result);
 
-  Clock* const clock_;
+  common::Clock* const clock_;
 
  private:
   const std::chrono::microseconds cycle_period_;
   const bool quick_stop_all_on_fault_;
   std::vector<Cia402HostDrive*> group_;
-  Duration last_cycle_start_{0};
+  common::Duration last_cycle_start_{0};
   bool cycled_ = false;
 };
 

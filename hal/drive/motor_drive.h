@@ -22,13 +22,11 @@
 #include <system_error>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
+#include "common/lifecycle.h"
 #include "hal/drive/cia402.h"
 
 namespace kinevis::hal {
-
-enum class DeviceLifecycle { kUnconfigured, kConfigured, kActive, kFault };
-const char* ToString(DeviceLifecycle lifecycle);
 
 // Conversion between SI and the drive's units. counts = si * counts_per_unit.
 struct DriveScaling {
@@ -52,8 +50,8 @@ struct DriveStatus {
   bool target_reached = false;
   bool following_error = false;
   DriveFaultSource fault_source = DriveFaultSource::kNone;
-  Duration timestamp{0};  // when these values were sampled (bus clock)
-  uint64_t cycle = 0;     // bus cycle that brought them
+  common::Duration timestamp{0};  // when these values were sampled (bus clock)
+  uint64_t cycle = 0;             // bus cycle that brought them
 };
 
 struct DriveCounters {
@@ -72,7 +70,7 @@ class MotorDrive {
 
   // "hexapod/leg3 (socketcan:can0 node 3)": used in every log line and error.
   virtual const std::string& name() const = 0;
-  virtual DeviceLifecycle lifecycle() const = 0;
+  virtual common::DeviceLifecycle lifecycle() const = 0;
 
   // Set-up (not in the cycle): reads the device's identity and configures it (PDO mapping, mode,
   // limits) -> configured. Throws HalError naming the drive and the step that failed.

@@ -43,9 +43,9 @@ Rs485Drive::Rs485Drive(Rs485DriveBus* bus, Rs485DriveConfig config, std::string 
 
 Rs485Drive::~Rs485Drive() = default;
 
-Clock& Rs485Drive::clock() const { return bus_->clock(); }
+common::Clock& Rs485Drive::clock() const { return bus_->clock(); }
 
-bool Rs485Drive::RunCyclesUntil(Duration deadline, const std::function<bool()>& done) {
+bool Rs485Drive::RunCyclesUntil(common::Duration deadline, const std::function<bool()>& done) {
   return bus_->RunCyclesUntil(deadline, done);
 }
 
@@ -145,7 +145,7 @@ void Rs485Drive::Configure() {
 
   SetConfigured(std::move(identity));
   exchanging_ = true;
-  const Duration started = clock().Now();
+  const common::Duration started = clock().Now();
   if (!RunCyclesUntil(started + options().command_timeout, [this] { return inputs_fresh(); })) {
     exchanging_ = false;
     SetUnconfigured();
@@ -163,7 +163,7 @@ void Rs485Drive::Configure() {
       ToString(status().state));
 }
 
-std::error_code Rs485Drive::Exchange(Duration now, uint64_t cycle) {
+std::error_code Rs485Drive::Exchange(common::Duration now, uint64_t cycle) {
   ProcessOutputs o;
   ComposeOutputs(&o);
   uint16_t out[kCyclicOutputCount];
@@ -237,7 +237,8 @@ Rs485DriveBus::Rs485DriveBus(std::string backend, Rs485DriveBusOptions options)
     problem("faulted_poll_cycles " + std::to_string(options_.faulted_poll_cycles) +
             " must be >= 1");
   }
-  if (!problems.empty()) throw ConfigError("RS485 drive bus \"" + name_ + "\": " + problems);
+  if (!problems.empty())
+    throw common::ConfigError("RS485 drive bus \"" + name_ + "\": " + problems);
   drives_.reserve(247);
 }
 
@@ -257,8 +258,8 @@ Rs485Drive* Rs485DriveBus::AddDrive(const Rs485DriveConfig& config) {
     problem("watchdog " + std::to_string(config.watchdog.count()) + " ms is not in 0..65535");
   }
   if (!problems.empty()) {
-    throw ConfigError("RS485 drive bus \"" + name_ + "\", drive \"" + config.drive.name +
-                      "\" (unit " + std::to_string(config.unit) + "): " + problems);
+    throw common::ConfigError("RS485 drive bus \"" + name_ + "\", drive \"" + config.drive.name +
+                              "\" (unit " + std::to_string(config.unit) + "): " + problems);
   }
   if (!client_) client_ = ModbusClient::Open(spec_);
   const std::string name = (config.drive.name.empty() ? std::string("drive") : config.drive.name) +

@@ -37,8 +37,8 @@
 #include <system_error>
 #include <vector>
 
+#include "common/clock.h"
 #include "hal/common/backend_spec.h"
-#include "hal/common/clock.h"
 #include "hal/drive/cia402_can_drive.h"
 #include "hal/drive/cia402_drive_bus.h"
 #include "hal/drive/motor_drive.h"
@@ -76,12 +76,12 @@ class Rs485Drive final : public Cia402HostDrive {
   Rs485Drive(Rs485DriveBus* bus, Rs485DriveConfig config, std::string name,
              std::shared_ptr<ModbusClient> client);
 
-  bool RunCyclesUntil(Duration deadline, const std::function<bool()>& done) override;
-  Clock& clock() const override;
+  bool RunCyclesUntil(common::Duration deadline, const std::function<bool()>& done) override;
+  common::Clock& clock() const override;
   std::error_code RestoreLink() override;
 
   // One write-and-read exchange; called by the bus. Returns {} or the exchange's error.
-  std::error_code Exchange(Duration now, uint64_t cycle);
+  std::error_code Exchange(common::Duration now, uint64_t cycle);
   [[noreturn]] void ThrowModbusFailure(const std::string& step, std::error_code ec);
   void WriteU32(uint16_t address, uint32_t value, const char* what);
   void WriteU16(uint16_t address, uint16_t value, const char* what);
@@ -100,7 +100,7 @@ class Rs485Drive final : public Cia402HostDrive {
 };
 
 struct Rs485DriveBusOptions {
-  Clock* clock = nullptr;  // nullptr: SteadyClock::Instance()
+  common::Clock* clock = nullptr;  // nullptr: SteadyClock::Instance()
   // Period of the cycles the bus runs itself (Configure, Enable, ...), > 0.
   std::chrono::microseconds cycle_period{2000};
   int max_missed_cycles = 3;            // consecutive failed exchanges before a link fault, >= 1

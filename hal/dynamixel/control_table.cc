@@ -12,6 +12,7 @@
 #include <set>
 #include <sstream>
 
+#include "common/check.h"
 #include "hal/common/error.h"
 
 #ifndef KINEVIS_SOURCE_DIR
@@ -46,22 +47,6 @@ bool IsOptional(DxlRole role) {
 }
 
 // Every problem found in one file, thrown together as one ConfigError.
-class Problems {
- public:
-  explicit Problems(std::string source) : source_(std::move(source)) {}
-  void Add(const std::string& key, const std::string& what) { list_.push_back(key + ": " + what); }
-  bool empty() const { return list_.empty(); }
-  void ThrowIfAny() const {
-    if (list_.empty()) return;
-    std::string message = source_ + ": invalid Dynamixel control table: ";
-    for (size_t i = 0; i < list_.size(); ++i) message += (i > 0 ? "; " : "") + list_[i];
-    throw ConfigError(message);
-  }
-
- private:
-  std::string source_;
-  std::vector<std::string> list_;
-};
 
 std::string Show(const YAML::Node& node) {
   if (node.IsScalar()) return "\"" + node.Scalar() + "\"";
@@ -72,37 +57,37 @@ std::string Show(const YAML::Node& node) {
 
 template <typename T>
 std::optional<T> Convert(const YAML::Node& node, const std::string& key, const char* what,
-                         Problems* problems) {
+                         common::Problems* problems) {
   if (!node.IsScalar()) {
-    problems->Add(key, Show(node) + " is not " + what);
+    problems->Add(std::string(key) + ": " + Show(node) + " is not " + what);
     return std::nullopt;
   }
   try {
     return node.as<T>();
   } catch (const YAML::Exception&) {
-    problems->Add(key, Show(node) + " is not " + what);
+    problems->Add(std::string(key) + ": " + Show(node) + " is not " + what);
     return std::nullopt;
   }
 }
 
 template <typename T>
 std::optional<T> Field(const YAML::Node& map, const std::string& field, const std::string& prefix,
-                       const char* what, bool required, Problems* problems) {
+                       const char* what, bool required, common::Problems* problems) {
   const std::string key = prefix.empty() ? field : prefix + "." + field;
   const YAML::Node node = map[field];
   if (!node) {
-    if (required) problems->Add(key, "missing");
+    if (required) problems->Add(std::string(key) + ": missing");
     return std::nullopt;
   }
   return Convert<T>(node, key, what, problems);
 }
 
 void CheckKeys(const YAML::Node& map, const std::set<std::string>& allowed,
-               const std::string& prefix, Problems* problems) {
+               const std::string& prefix, common::Problems* problems) {
   for (const auto& item : map) {
     const std::string key = item.first.Scalar();
     if (allowed.count(key) == 0) {
-      problems->Add(prefix.empty() ? key : prefix + "." + key, "unknown key");
+      problems->Add(std::string(prefix.empty() ? key : prefix + "." + key) + ": " + "unknown key");
     }
   }
 }
@@ -129,9 +114,9 @@ bool ValidName(const std::string& name) {
 }
 
 [[noreturn]] void AbortMissingRole(const std::string& model, DxlRole role) {
-  std::fprintf(stderr, "%s:%d: DxlControlTable::Get: table %s does not name role %s\n", __FILE__,
-               __LINE__, model.c_str(), ToString(role));
-  std::abort();
+  KINEVIS_DEMAND_MSG(
+      false, "DxlControlTable::Get: table " + model + " does not name role " + ToString(role));
+  KINEVIS_UNREACHABLE();
 }
 
 }  // namespace
@@ -146,7 +131,8 @@ const char* ToString(DxlRole role) {
 DxlControlTable DxlControlTable::LoadFile(const std::string& path) {
   std::ifstream in(path);
   if (!in)
-    throw ConfigError(path + ": cannot read the Dynamixel control table: " + ErrnoText(errno));
+    throw common::ConfigError(path +
+                              ": cannot read the Dynamixel control table: " + ErrnoText(errno));
   std::stringstream text;
   text << in.rdbuf();
   return Parse(text.str(), path);
@@ -172,8 +158,8 @@ DxlControlTable DxlControlTable::LoadModel(const std::string& model) {
   if (!std::filesystem::exists(path)) {
     std::string known;
     for (const std::string& m : ShippedModels()) known += (known.empty() ? "" : ", ") + m;
-    throw ConfigError("Dynamixel model \"" + model + "\": no control table " + path +
-                      " (shipped: " + (known.empty() ? "none" : known) + ")");
+    throw common::ConfigError("Dynamixel model \"" + model + "\": no control table " + path +
+                              " (shipped: " + (known.empty() ? "none" : known) + ")");
   }
   return LoadFile(path);
 }
@@ -183,12 +169,14 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
   try {
     root = YAML::Load(yaml_text);
   } catch (const YAML::Exception& e) {
-    throw ConfigError(source + ": YAML syntax error at line " + std::to_string(e.mark.line + 1) +
-                      ", column " + std::to_string(e.mark.column + 1) + ": " + e.msg);
+    throw common::ConfigError(source + ": YAML syntax error at line " +
+                              std::to_string(e.mark.line + 1) + ", column " +
+                              std::to_string(e.mark.column + 1) + ": " + e.msg);
   }
-  if (!root.IsMap()) throw ConfigError(source + ": a Dynamixel control table must be a YAML map");
+  if (!root.IsMap())
+    throw common::ConfigError(source + ": a Dynamixel control table must be a YAML map");
 
-  Problems problems(source);
+  common::Problems problems(source + ": invalid Dynamixel control table");
   DxlControlTable t;
   t.source_ = source;
   CheckKeys(root,
@@ -197,28 +185,29 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
             "", &problems);
 
   if (auto v = Field<std::string>(root, "model", "", "a string", true, &problems)) {
-    if (v->empty()) problems.Add("model", "empty");
+    if (v->empty()) problems.Add("model: empty");
     t.model_ = *v;
   }
   if (auto v = Field<int>(root, "protocol", "", "an integer", true, &problems)) {
-    if (*v != 1 && *v != 2) problems.Add("protocol", std::to_string(*v) + " is not 1 or 2");
+    if (*v != 1 && *v != 2)
+      problems.Add(std::string("protocol: ") + std::to_string(*v) + " is not 1 or 2");
     t.protocol_ = *v;
   }
   if (auto v = Field<int64_t>(root, "model_number", "", "an integer", true, &problems)) {
     if (*v < 0 || *v > 0xFFFF) {
-      problems.Add("model_number", std::to_string(*v) + " is not in 0..65535");
+      problems.Add(std::string("model_number: ") + std::to_string(*v) + " is not in 0..65535");
     }
     t.model_number_ = static_cast<uint16_t>(*v);
   }
   if (const YAML::Node aliases = root["model_number_aliases"]) {
     if (!aliases.IsSequence()) {
-      problems.Add("model_number_aliases", Show(aliases) + " is not a list");
+      problems.Add(std::string("model_number_aliases: ") + Show(aliases) + " is not a list");
     } else {
       for (size_t i = 0; i < aliases.size(); ++i) {
         const std::string key = "model_number_aliases[" + std::to_string(i) + "]";
         if (auto v = Convert<int64_t>(aliases[i], key, "an integer", &problems)) {
           if (*v < 0 || *v > 0xFFFF) {
-            problems.Add(key, std::to_string(*v) + " is not in 0..65535");
+            problems.Add(std::string(key) + ": " + std::to_string(*v) + " is not in 0..65535");
           } else {
             t.model_number_aliases_.push_back(static_cast<uint16_t>(*v));
           }
@@ -228,13 +217,13 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
   }
   if (auto v = Field<int64_t>(root, "default_baud", "", "an integer", true, &problems)) {
     if (*v <= 0 || *v > 100000000) {
-      problems.Add("default_baud", std::to_string(*v) + " is not a baud rate");
+      problems.Add(std::string("default_baud: ") + std::to_string(*v) + " is not a baud rate");
     }
     t.default_baud_ = static_cast<int>(*v);
   }
   if (auto v = Field<int64_t>(root, "eeprom_end", "", "an integer", true, &problems)) {
     if (*v < 0 || *v > 0xFFFF) {
-      problems.Add("eeprom_end", std::to_string(*v) + " is not in 0..65535");
+      problems.Add(std::string("eeprom_end: ") + std::to_string(*v) + " is not in 0..65535");
     }
     t.eeprom_end_ = static_cast<uint16_t>(*v);
   }
@@ -244,22 +233,23 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
   }
   if (auto v = Field<double>(root, "no_load_speed", "", "a number", true, &problems)) {
     if (!std::isfinite(*v) || *v <= 0) {
-      problems.Add("no_load_speed", std::to_string(*v) + " is not a positive speed in rad/s");
+      problems.Add(std::string("no_load_speed: ") + std::to_string(*v) +
+                   " is not a positive speed in rad/s");
     }
     t.no_load_speed_ = *v;
   }
 
   const YAML::Node regs = root["registers"];
   if (!regs) {
-    problems.Add("registers", "missing");
+    problems.Add("registers: missing");
   } else if (!regs.IsSequence() || regs.size() == 0) {
-    problems.Add("registers", Show(regs) + " is not a non-empty list");
+    problems.Add(std::string("registers: ") + Show(regs) + " is not a non-empty list");
   } else {
     for (size_t i = 0; i < regs.size(); ++i) {
       const YAML::Node node = regs[i];
       std::string key = "registers[" + std::to_string(i) + "]";
       if (!node.IsMap()) {
-        problems.Add(key, Show(node) + " is not a map");
+        problems.Add(std::string(key) + ": " + Show(node) + " is not a map");
         continue;
       }
       DxlRegister r;
@@ -267,7 +257,7 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
       if (auto v = Field<std::string>(node, "name", key, "a string", true, &problems)) {
         r.name = *v;
         if (!ValidName(r.name)) {
-          problems.Add(key + ".name", "\"" + r.name + "\" is not snake_case");
+          problems.Add(std::string(key + ".name") + ": \"" + r.name + "\" is not snake_case");
           ok = false;
         }
         key += " (" + r.name + ")";
@@ -280,7 +270,8 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
           key, &problems);
       if (auto v = Field<int64_t>(node, "address", key, "an integer", true, &problems)) {
         if (*v < 0 || *v > 0xFFFF) {
-          problems.Add(key + ".address", std::to_string(*v) + " is not in 0..65535");
+          problems.Add(std::string(key + ".address") + ": " + std::to_string(*v) +
+                       " is not in 0..65535");
           ok = false;
         }
         r.address = static_cast<uint16_t>(*v);
@@ -289,7 +280,8 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
       }
       if (auto v = Field<int>(node, "size", key, "an integer", true, &problems)) {
         if (*v != 1 && *v != 2 && *v != 4) {
-          problems.Add(key + ".size", std::to_string(*v) + " is not 1, 2 or 4");
+          problems.Add(std::string(key + ".size") + ": " + std::to_string(*v) +
+                       " is not 1, 2 or 4");
           ok = false;
         }
         r.size = static_cast<uint8_t>(*v);
@@ -302,7 +294,7 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
         } else if (*v == "rw") {
           r.access = DxlAccess::kReadWrite;
         } else {
-          problems.Add(key + ".access", "\"" + *v + "\" is not r or rw");
+          problems.Add(std::string(key + ".access") + ": \"" + *v + "\" is not r or rw");
         }
       }
       if (auto v = Field<std::string>(node, "encoding", key, "a string", false, &problems)) {
@@ -313,12 +305,12 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
         } else if (*v == "direction_bit10") {
           r.encoding = DxlEncoding::kDirectionBit10;
           if (r.size != 2) {
-            problems.Add(key + ".encoding", "direction_bit10 needs size 2");
+            problems.Add(std::string(key + ".encoding") + ": direction_bit10 needs size 2");
             ok = false;
           }
         } else {
-          problems.Add(key + ".encoding",
-                       "\"" + *v + "\" is not unsigned, signed or direction_bit10");
+          problems.Add(std::string(key + ".encoding") + ": " + "\"" + *v +
+                       "\" is not unsigned, signed or direction_bit10");
         }
       }
       if (auto v = Field<std::string>(node, "unit", key, "a string", false, &problems)) {
@@ -326,31 +318,31 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
       }
       if (auto v = Field<double>(node, "scale", key, "a number", false, &problems)) {
         if (!std::isfinite(*v) || *v == 0.0) {
-          problems.Add(key + ".scale", node["scale"].Scalar() + " is not a finite non-zero number");
+          problems.Add(std::string(key + ".scale") + ": " + node["scale"].Scalar() +
+                       " is not a finite non-zero number");
         }
         r.scale = *v;
       }
       if (!ok) continue;  // the checks below need a valid size
       if (t.protocol_ == 1 && r.address + r.size > 256) {
-        problems.Add(key + ".address",
-                     std::to_string(r.address) + " + size is beyond protocol 1.0's 256 bytes");
+        problems.Add(std::string(key + ".address") + ": " + std::to_string(r.address) +
+                     " + size is beyond protocol 1.0's 256 bytes");
       }
       const auto [lo, hi] = Representable(r.encoding, r.size);
       r.min = lo;
       r.max = hi;
       if (const YAML::Node range = node["range"]) {
         if (!range.IsSequence() || range.size() != 2) {
-          problems.Add(key + ".range", Show(range) + " is not [min, max]");
+          problems.Add(std::string(key + ".range") + ": " + Show(range) + " is not [min, max]");
         } else {
           auto a = Convert<int64_t>(range[0], key + ".range[0]", "an integer", &problems);
           auto b = Convert<int64_t>(range[1], key + ".range[1]", "an integer", &problems);
           if (a && b) {
             if (*a > *b || *a < lo || *b > hi) {
-              problems.Add(key + ".range", "[" + std::to_string(*a) + ", " + std::to_string(*b) +
-                                               "] is empty or outside what " +
-                                               std::to_string(r.size) + " bytes hold [" +
-                                               std::to_string(lo) + ", " + std::to_string(hi) +
-                                               "]");
+              problems.Add(std::string(key + ".range") + ": [" + std::to_string(*a) + ", " +
+                           std::to_string(*b) + "] is empty or outside what " +
+                           std::to_string(r.size) + " bytes hold [" + std::to_string(lo) + ", " +
+                           std::to_string(hi) + "]");
             } else {
               r.min = *a;
               r.max = *b;
@@ -361,18 +353,18 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
       r.initial = std::clamp<int64_t>(0, r.min, r.max);
       if (auto v = Field<int64_t>(node, "initial", key, "an integer", false, &problems)) {
         if (*v < r.min || *v > r.max) {
-          problems.Add(key + ".initial", std::to_string(*v) + " is outside the range [" +
-                                             std::to_string(r.min) + ", " + std::to_string(r.max) +
-                                             "]");
+          problems.Add(std::string(key + ".initial") + ": " + std::to_string(*v) +
+                       " is outside the range [" + std::to_string(r.min) + ", " +
+                       std::to_string(r.max) + "]");
         }
         r.initial = *v;
       }
       for (const DxlRegister& other : t.registers_) {
         if (other.name == r.name) {
-          problems.Add(key + ".name", "\"" + r.name + "\" is defined twice");
+          problems.Add(std::string(key + ".name") + ": \"" + r.name + "\" is defined twice");
         } else if (r.address < other.address + other.size && other.address < r.address + r.size) {
-          problems.Add(key + ".address", std::to_string(r.address) + " overlaps " + other.name +
-                                             " at " + std::to_string(other.address));
+          problems.Add(std::string(key + ".address") + ": " + std::to_string(r.address) +
+                       " overlaps " + other.name + " at " + std::to_string(other.address));
         }
       }
       t.registers_.push_back(std::move(r));
@@ -381,9 +373,9 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
 
   const YAML::Node roles = root["roles"];
   if (!roles) {
-    problems.Add("roles", "missing");
+    problems.Add("roles: missing");
   } else if (!roles.IsMap()) {
-    problems.Add("roles", Show(roles) + " is not a map");
+    problems.Add(std::string("roles: ") + Show(roles) + " is not a map");
   } else {
     for (const auto& item : roles) {
       const std::string role_name = item.first.Scalar();
@@ -391,7 +383,7 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
       const auto* it = std::find_if(std::begin(kRoleNames), std::end(kRoleNames),
                                     [&](const char* n) { return role_name == n; });
       if (it == std::end(kRoleNames)) {
-        problems.Add(key, "unknown role");
+        problems.Add(std::string(key) + ": unknown role");
         continue;
       }
       auto reg_name = Convert<std::string>(item.second, key, "a register name", &problems);
@@ -399,14 +391,14 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
       const auto reg = std::find_if(t.registers_.begin(), t.registers_.end(),
                                     [&](const DxlRegister& r) { return r.name == *reg_name; });
       if (reg == t.registers_.end()) {
-        problems.Add(key, "\"" + *reg_name + "\" is not a register of this table");
+        problems.Add(std::string(key) + ": \"" + *reg_name + "\" is not a register of this table");
         continue;
       }
       t.roles_[it - std::begin(kRoleNames)] = static_cast<int>(reg - t.registers_.begin());
     }
     for (int i = 0; i < kDxlRoleCount; ++i) {
       if (t.roles_[i] < 0 && !IsOptional(static_cast<DxlRole>(i))) {
-        problems.Add(std::string("roles.") + kRoleNames[i], "missing");
+        problems.Add(std::string(std::string("roles.") + kRoleNames[i]) + ": " + "missing");
       }
     }
   }
@@ -415,15 +407,15 @@ DxlControlTable DxlControlTable::Parse(const std::string& yaml_text, const std::
     for (DxlRole role : {DxlRole::kTorqueEnable, DxlRole::kGoalPosition, DxlRole::kProfileVelocity,
                          DxlRole::kMinPosition, DxlRole::kMaxPosition}) {
       if (t.Get(role).access != DxlAccess::kReadWrite) {
-        problems.Add(std::string("roles.") + ToString(role),
-                     "register " + t.Get(role).name + " is read-only");
+        problems.Add(std::string(std::string("roles.") + ToString(role)) + ": " + "register " +
+                     t.Get(role).name + " is read-only");
       }
     }
     const DxlRegister& model_reg = t.Get(DxlRole::kModelNumber);
     if (model_reg.initial != t.model_number_) {
-      problems.Add("registers (" + model_reg.name + ").initial",
+      problems.Add(std::string("registers (" + model_reg.name + ").initial") + ": " +
                    std::to_string(model_reg.initial) + " differs from model_number " +
-                       std::to_string(t.model_number_));
+                   std::to_string(t.model_number_));
     }
   }
   problems.ThrowIfAny();

@@ -56,15 +56,15 @@ void DynamixelBus::CheckOptions(const std::string& name, const DynamixelBusOptio
   }
   if (!bad.empty()) {
     bad.pop_back();
-    throw ConfigError("Dynamixel bus " + name + ": bad options:" + bad);
+    throw common::ConfigError("Dynamixel bus " + name + ": bad options:" + bad);
   }
 }
 
 std::unique_ptr<DynamixelBus> DynamixelBus::Open(const std::string& backend,
                                                  DynamixelBusOptions options) {
   if (BackendScheme(backend) != "tty") {
-    throw ConfigError("Dynamixel bus \"" + backend +
-                      "\": the backend must be a serial port, tty:DEVICE[@BAUD]");
+    throw common::ConfigError("Dynamixel bus \"" + backend +
+                              "\": the backend must be a serial port, tty:DEVICE[@BAUD]");
   }
   const SerialSettings settings = ParseTtyBackend(backend);
   CheckOptions(backend, options);
@@ -476,12 +476,13 @@ DynamixelServo::DynamixelServo(DynamixelBus* bus, uint8_t id, DxlControlTable ta
       options_(options),
       name_(ServoName(*bus, id, table_)) {
   if (table_.protocol() != bus_->protocol()) {
-    throw ConfigError(name_ + ": the control table " + table_.source() + " is for protocol " +
-                      std::to_string(table_.protocol()) + ".0, the bus speaks protocol " +
-                      std::to_string(bus_->protocol()) + ".0");
+    throw common::ConfigError(name_ + ": the control table " + table_.source() +
+                              " is for protocol " + std::to_string(table_.protocol()) +
+                              ".0, the bus speaks protocol " + std::to_string(bus_->protocol()) +
+                              ".0");
   }
   if (id_ > (bus_->protocol() == 1 ? 253 : 252)) {
-    throw ConfigError(name_ + ": id " + std::to_string(id_) + " is out of range");
+    throw common::ConfigError(name_ + ": id " + std::to_string(id_) + " is out of range");
   }
   uint32_t lo = 0xFFFF;
   uint32_t hi = 0;
@@ -504,8 +505,8 @@ uint8_t DynamixelServo::AlarmBits(uint8_t status_error) const {
 }
 
 void DynamixelServo::EnterFault(const std::string& why) {
-  if (lifecycle_ == DeviceLifecycle::kFault) return;
-  lifecycle_ = DeviceLifecycle::kFault;
+  if (lifecycle_ == common::DeviceLifecycle::kFault) return;
+  lifecycle_ = common::DeviceLifecycle::kFault;
   spdlog::error("{}: fault: {}; torque off", name_, why);
   // The servo has already cut the torque on an overload; this makes the safe state explicit for
   // every other alarm too.
@@ -515,7 +516,7 @@ void DynamixelServo::EnterFault(const std::string& why) {
 void DynamixelServo::CheckAlarm(uint8_t status_error, uint8_t hardware_error) {
   const uint8_t alarm = AlarmBits(status_error);
   if (alarm == 0 && hardware_error == 0) return;
-  if (lifecycle_ == DeviceLifecycle::kFault) return;
+  if (lifecycle_ == common::DeviceLifecycle::kFault) return;
   std::string why;
   if (bus_->protocol() == 1) {
     why = Dxl1ErrorText(alarm != 0 ? alarm : hardware_error);
@@ -590,21 +591,21 @@ void DynamixelServo::Configure() {
   }
   min_position_ = DxlControlTable::ToSi(min_reg, min_raw);
   max_position_ = DxlControlTable::ToSi(max_reg, max_raw);
-  lifecycle_ = DeviceLifecycle::kConfigured;
+  lifecycle_ = common::DeviceLifecycle::kConfigured;
   ec = ReadState(nullptr);
   if (ec && ec != Errc::kDeviceFault) {
-    lifecycle_ = DeviceLifecycle::kUnconfigured;
+    lifecycle_ = common::DeviceLifecycle::kUnconfigured;
     throw HalError(name_, "read the state", ec.message(), ec);
   }
   spdlog::info(
       "{}: configured: model number {}, firmware {}, limits [{:.4f}, {:.4f}] rad, "
       "position {:.4f} rad{}",
       name_, model, firmware, min_position_, max_position_, state_.position,
-      lifecycle_ == DeviceLifecycle::kFault ? ", in fault" : "");
+      lifecycle_ == common::DeviceLifecycle::kFault ? ", in fault" : "");
 }
 
 std::error_code DynamixelServo::ReadState(DxlServoState* state) {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) return Errc::kNotActive;
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) return Errc::kNotActive;
   DxlReply r;
   const std::error_code ec = bus_->Read(id_, state_address_, state_length_, &r);
   if (ec && ec != Errc::kDeviceFault) return ec;
@@ -636,13 +637,13 @@ std::error_code DynamixelServo::ReadState(DxlServoState* state) {
 
 std::error_code DynamixelServo::Enable() {
   switch (lifecycle_) {
-    case DeviceLifecycle::kUnconfigured:
+    case common::DeviceLifecycle::kUnconfigured:
       return Errc::kNotActive;
-    case DeviceLifecycle::kFault:
+    case common::DeviceLifecycle::kFault:
       return Errc::kDeviceFault;
-    case DeviceLifecycle::kActive:
+    case common::DeviceLifecycle::kActive:
       return {};
-    case DeviceLifecycle::kConfigured:
+    case common::DeviceLifecycle::kConfigured:
       break;
   }
   // Hold where it stands: the goal becomes the present position before the torque comes on.
@@ -658,25 +659,25 @@ std::error_code DynamixelServo::Enable() {
       std::clamp(DxlControlTable::DecodeRaw(present, r.data.data()), goal.min, goal.max);
   if ((ec = WriteRegister(DxlRole::kGoalPosition, hold))) return ec;
   if ((ec = WriteRegister(DxlRole::kTorqueEnable, 1))) return ec;
-  lifecycle_ = DeviceLifecycle::kActive;
+  lifecycle_ = common::DeviceLifecycle::kActive;
   spdlog::info("{}: torque on, holding {:.4f} rad", name_, DxlControlTable::ToSi(goal, hold));
   return {};
 }
 
 std::error_code DynamixelServo::Disable() {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) return Errc::kNotActive;
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) return Errc::kNotActive;
   const std::error_code ec = WriteRegister(DxlRole::kTorqueEnable, 0);
   // A servo in alarm still takes "torque off"; only a failed transfer leaves the state unknown.
   if (ec && ec != Errc::kDeviceFault) return ec;
-  if (lifecycle_ == DeviceLifecycle::kActive) {
-    lifecycle_ = DeviceLifecycle::kConfigured;
+  if (lifecycle_ == common::DeviceLifecycle::kActive) {
+    lifecycle_ = common::DeviceLifecycle::kConfigured;
     spdlog::info("{}: torque off", name_);
   }
   return ec;
 }
 
 std::error_code DynamixelServo::SetGoalPosition(double position) {
-  if (lifecycle_ != DeviceLifecycle::kActive) return Errc::kNotActive;
+  if (lifecycle_ != common::DeviceLifecycle::kActive) return Errc::kNotActive;
   constexpr double kSlack = 1e-9;  // limits come from ticks; accept them back exactly
   if (!std::isfinite(position) || position < min_position_ - kSlack ||
       position > max_position_ + kSlack) {
@@ -688,7 +689,7 @@ std::error_code DynamixelServo::SetGoalPosition(double position) {
 }
 
 std::error_code DynamixelServo::SetProfileVelocity(double velocity) {
-  if (lifecycle_ != DeviceLifecycle::kActive) return Errc::kNotActive;
+  if (lifecycle_ != common::DeviceLifecycle::kActive) return Errc::kNotActive;
   if (!(velocity >= 0.0)) return Errc::kInvalidArgument;
   const auto raw = DxlControlTable::FromSi(table_.Get(DxlRole::kProfileVelocity), velocity);
   if (!raw) return Errc::kInvalidArgument;
@@ -697,7 +698,7 @@ std::error_code DynamixelServo::SetProfileVelocity(double velocity) {
 
 std::error_code DynamixelServo::Reboot() {
   if (bus_->protocol() != 2) return Errc::kUnsupported;
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) return Errc::kNotActive;
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) return Errc::kNotActive;
   std::error_code ec = bus_->Reboot(id_);
   if (ec && ec != Errc::kDeviceFault) return ec;
   spdlog::info("{}: rebooting", name_);
@@ -712,12 +713,12 @@ std::error_code DynamixelServo::Reboot() {
                  options_.reboot_timeout.count());
     return ec;
   }
-  lifecycle_ = DeviceLifecycle::kConfigured;
+  lifecycle_ = common::DeviceLifecycle::kConfigured;
   return ReadState(nullptr);
 }
 
 std::error_code DynamixelServo::ClearFault() {
-  if (lifecycle_ != DeviceLifecycle::kFault) return {};
+  if (lifecycle_ != common::DeviceLifecycle::kFault) return {};
   if (bus_->protocol() == 2) return Reboot();
   // Protocol 1.0 has no reboot: the alarm goes with a power cycle, after which it is not reported.
   DxlReply r;
@@ -728,7 +729,7 @@ std::error_code DynamixelServo::ClearFault() {
                  Dxl1ErrorText(r.error));
     return Errc::kDeviceFault;
   }
-  lifecycle_ = DeviceLifecycle::kConfigured;
+  lifecycle_ = common::DeviceLifecycle::kConfigured;
   return ReadState(nullptr);
 }
 

@@ -207,7 +207,7 @@ class DynamixelServo {
   const std::string& name() const { return name_; }
   uint8_t id() const { return id_; }
   const DxlControlTable& table() const { return table_; }
-  DeviceLifecycle lifecycle() const { return lifecycle_; }
+  common::DeviceLifecycle lifecycle() const { return lifecycle_; }
   // Joint limits read at Configure(), rad.
   double min_position() const { return min_position_; }
   double max_position() const { return max_position_; }
@@ -255,7 +255,7 @@ class DynamixelServo {
   uint16_t state_address_ = 0;
   uint16_t state_length_ = 0;
 
-  DeviceLifecycle lifecycle_ = DeviceLifecycle::kUnconfigured;
+  common::DeviceLifecycle lifecycle_ = common::DeviceLifecycle::kUnconfigured;
   double min_position_ = 0.0;
   double max_position_ = 0.0;
   DxlServoState state_;

@@ -29,9 +29,9 @@ constexpr uint16_t kManufacturerName = 0x1008;
 constexpr uint16_t kApplicationTag = 0x2000;
 constexpr size_t kMaxStringSize = 64;
 // CiA 301 leaves the server's SDO timeout to the device; 1 s is what most drives use.
-constexpr Duration kSdoTimeout = 1s;
+constexpr common::Duration kSdoTimeout = 1s;
 // Without SYNC for this long, a drive in a cyclic mode is stepped on the clock again.
-constexpr Duration kSyncLossTimeout = 50ms;
+constexpr common::Duration kSyncLossTimeout = 50ms;
 constexpr std::chrono::microseconds kThreadPoll = 1ms;
 constexpr uint32_t kCobIdMask = 0x7FF;
 constexpr uint32_t kCobIdExtendedBit = 0x20000000u;
@@ -214,7 +214,7 @@ int64_t SignExtend(uint32_t raw, uint8_t bytes) {
 
 struct CanopenDriveSim::Impl {
   CanBus* bus;
-  Clock* clock;
+  common::Clock* clock;
   Options options;
   std::string name;
   Cia402Device device;
@@ -225,7 +225,7 @@ struct CanopenDriveSim::Impl {
   std::array<PdoComm, 4> rpdo_comm, tpdo_comm;
   std::array<PdoMap, 4> rpdo_map, tpdo_map;
   uint16_t heartbeat_ms = 0;
-  Duration next_heartbeat{0};
+  common::Duration next_heartbeat{0};
   std::string tag;
 
   struct RpdoBuffer {
@@ -237,8 +237,8 @@ struct CanopenDriveSim::Impl {
     int sync_count = 0;
     bool sent_once = false;
     CanFrame last;
-    Duration last_sent{0};
-    Duration next_event{0};
+    common::Duration last_sent{0};
+    common::Duration next_event{0};
   };
   std::array<TpdoState, 4> tpdo_state;
 
@@ -252,20 +252,20 @@ struct CanopenDriveSim::Impl {
     bool toggle = false;
     bool size_indicated = false;
     uint32_t size = 0;
-    Duration last_activity{0};
+    common::Duration last_activity{0};
   } sdo;
 
-  Duration last_step{0};
-  Duration last_sync{0};
+  common::Duration last_step{0};
+  common::Duration last_sync{0};
   bool synced = false;
 
   // Fault injection.
   int drop_replies = 0;
-  Duration reply_delay{0};
+  common::Duration reply_delay{0};
   int malformed_replies = 0;
   bool heartbeat_stopped = false;
   bool disconnected = false;
-  std::deque<std::pair<Duration, CanFrame>> delayed;
+  std::deque<std::pair<common::Duration, CanFrame>> delayed;
 
   Statistics stats;
 
@@ -277,7 +277,7 @@ struct CanopenDriveSim::Impl {
   std::atomic<bool> running{false};
   std::thread thread;
 
-  Impl(CanBus* b, Clock* c, Options o)
+  Impl(CanBus* b, common::Clock* c, Options o)
       : bus(b),
         clock(c),
         options(o),
@@ -307,7 +307,7 @@ struct CanopenDriveSim::Impl {
   }
 
   // SDO responses and TPDOs: subject to DropNextReplies, SendMalformedSdoReplies, SetReplyDelay.
-  bool SendReplyLocked(CanFrame frame, bool sdo_response, Duration now) {
+  bool SendReplyLocked(CanFrame frame, bool sdo_response, common::Duration now) {
     if (disconnected) return false;
     if (drop_replies > 0) {
       --drop_replies;
@@ -318,7 +318,7 @@ struct CanopenDriveSim::Impl {
       --malformed_replies;
       frame.dlc = 5;
     }
-    if (reply_delay > Duration::zero()) {
+    if (reply_delay > common::Duration::zero()) {
       delayed.emplace_back(now + reply_delay, frame);
       return true;
     }
@@ -326,7 +326,7 @@ struct CanopenDriveSim::Impl {
     return true;
   }
 
-  void SendSdoLocked(const SdoMessage& m, Duration now) {
+  void SendSdoLocked(const SdoMessage& m, common::Duration now) {
     if (m.type == SdoType::kAbort) {
       ++stats.sdo_aborts_sent;
       spdlog::debug("{}: SDO abort 0x{:04X}.{} code 0x{:08X} ({})", name, m.index, m.subindex,
@@ -335,7 +335,7 @@ struct CanopenDriveSim::Impl {
     SendReplyLocked(EncodeSdoResponse(node(), m), true, now);
   }
 
-  void AbortLocked(uint16_t index, uint8_t sub, uint32_t code, Duration now) {
+  void AbortLocked(uint16_t index, uint8_t sub, uint32_t code, common::Duration now) {
     sdo = Transfer{};
     SendSdoLocked(SdoMessage::Abort(index, sub, code), now);
   }
@@ -362,7 +362,7 @@ struct CanopenDriveSim::Impl {
     sdo = Transfer{};
   }
 
-  void BootLocked(Duration now) {
+  void BootLocked(common::Duration now) {
     booted = true;
     nmt = NmtState::kPreOperational;
     last_step = now;
@@ -374,7 +374,7 @@ struct CanopenDriveSim::Impl {
     next_heartbeat = now + std::chrono::milliseconds(heartbeat_ms);
   }
 
-  void HandleNmtLocked(const NmtMessage& m, Duration now) {
+  void HandleNmtLocked(const NmtMessage& m, common::Duration now) {
     if (m.node != 0 && m.node != node()) return;
     ++stats.nmt_commands;
     spdlog::debug("{}: NMT {}", name, ToString(m.command));
@@ -546,7 +546,7 @@ struct CanopenDriveSim::Impl {
 
   // Writes a numeric object (from SDO or a PDO). Returns 0 or the abort code.
   uint32_t WriteNumericLocked(uint16_t index, uint8_t sub, uint32_t raw, const SubDef& def,
-                              Duration now) {
+                              common::Duration now) {
     const int64_t value = def.is_signed ? SignExtend(raw, def.bytes) : static_cast<int64_t>(raw);
     if (index >= kRpdoCommunication && index < kRpdoCommunication + 4) {
       PdoComm& c = rpdo_comm[index - kRpdoCommunication];
@@ -643,7 +643,7 @@ struct CanopenDriveSim::Impl {
 
   // Writes an object for an SDO download of `size` bytes. Returns 0 or the abort code.
   uint32_t WriteLocked(uint16_t index, uint8_t sub, const uint8_t* data, size_t size,
-                       Duration now) {
+                       common::Duration now) {
     SubDef def;
     if (uint32_t code = Lookup(index, sub, &def)) return code;
     if (def.access != Access::kRw) return sdo_abort::kReadOnly;
@@ -658,7 +658,7 @@ struct CanopenDriveSim::Impl {
   }
 
   // ------------------------------------------------------------------------------ SDO server
-  void HandleSdoLocked(const CanFrame& frame, Duration now) {
+  void HandleSdoLocked(const CanFrame& frame, common::Duration now) {
     if (nmt == NmtState::kStopped) return;
     if (frame.dlc != 8 || frame.rtr) {
       spdlog::debug("{}: ignored SDO request with dlc {}", name, frame.dlc);
@@ -696,7 +696,7 @@ struct CanopenDriveSim::Impl {
     }
   }
 
-  void InitiateDownloadLocked(const SdoMessage& m, Duration now) {
+  void InitiateDownloadLocked(const SdoMessage& m, common::Duration now) {
     sdo = Transfer{};  // a new initiate ends any transfer in progress
     SubDef def;
     if (uint32_t code = Lookup(m.index, m.subindex, &def)) {
@@ -738,7 +738,7 @@ struct CanopenDriveSim::Impl {
     SendSdoLocked(SdoMessage::InitiateDownloadResponse(m.index, m.subindex), now);
   }
 
-  void DownloadSegmentLocked(const SdoMessage& m, Duration now) {
+  void DownloadSegmentLocked(const SdoMessage& m, common::Duration now) {
     if (sdo.kind != Transfer::Kind::kDownload) {
       AbortLocked(sdo.index, sdo.subindex, sdo_abort::kInvalidCommandSpecifier, now);
       return;
@@ -771,7 +771,7 @@ struct CanopenDriveSim::Impl {
     SendSdoLocked(SdoMessage::DownloadSegmentResponse(m.toggle), now);
   }
 
-  void InitiateUploadLocked(const SdoMessage& m, Duration now) {
+  void InitiateUploadLocked(const SdoMessage& m, common::Duration now) {
     sdo = Transfer{};
     std::vector<uint8_t> data;
     if (uint32_t code = ReadLocked(m.index, m.subindex, &data)) {
@@ -796,7 +796,7 @@ struct CanopenDriveSim::Impl {
                   now);
   }
 
-  void UploadSegmentLocked(const SdoMessage& m, Duration now) {
+  void UploadSegmentLocked(const SdoMessage& m, common::Duration now) {
     if (sdo.kind != Transfer::Kind::kUpload) {
       AbortLocked(sdo.index, sdo.subindex, sdo_abort::kInvalidCommandSpecifier, now);
       return;
@@ -823,7 +823,7 @@ struct CanopenDriveSim::Impl {
     return bits / 8;
   }
 
-  void ApplyRpdoLocked(int n, const CanFrame& frame, Duration now) {
+  void ApplyRpdoLocked(int n, const CanFrame& frame, common::Duration now) {
     const PdoMap& m = rpdo_map[n];
     size_t offset = 0;
     std::optional<uint16_t> controlword;
@@ -843,7 +843,7 @@ struct CanopenDriveSim::Impl {
     if (controlword) device.SetControlword(*controlword);
   }
 
-  void HandleRpdoLocked(int n, const CanFrame& frame, Duration now) {
+  void HandleRpdoLocked(int n, const CanFrame& frame, common::Duration now) {
     if (frame.dlc < MappedBytes(rpdo_map[n])) {
       // CiA 301 would raise EMCY 0x8210; the simulator only reports it in the log.
       spdlog::debug("{}: RPDO{} with {} bytes, mapping needs {}; ignored", name, n + 1, frame.dlc,
@@ -874,7 +874,7 @@ struct CanopenDriveSim::Impl {
     return f;
   }
 
-  void SendTpdoLocked(int n, const CanFrame& f, Duration now) {
+  void SendTpdoLocked(int n, const CanFrame& f, common::Duration now) {
     TpdoState& t = tpdo_state[n];
     t.sent_once = true;
     t.last = f;
@@ -883,7 +883,7 @@ struct CanopenDriveSim::Impl {
     if (SendReplyLocked(f, false, now)) ++stats.tpdos;
   }
 
-  void HandleSyncLocked(Duration now) {
+  void HandleSyncLocked(common::Duration now) {
     if (nmt == NmtState::kStopped) return;
     ++stats.syncs;
     last_sync = now;
@@ -916,7 +916,7 @@ struct CanopenDriveSim::Impl {
     }
   }
 
-  void EventTpdosLocked(Duration now) {
+  void EventTpdosLocked(common::Duration now) {
     if (nmt != NmtState::kOperational) return;
     std::optional<Snapshot> s;
     for (int n = 0; n < 4; ++n) {
@@ -934,7 +934,7 @@ struct CanopenDriveSim::Impl {
   }
 
   // ------------------------------------------------------------------------------ time
-  void StepDeviceLocked(Duration now) {
+  void StepDeviceLocked(common::Duration now) {
     if (now <= last_step) return;
     const double dt = std::chrono::duration<double>(now - last_step).count();
     last_step = now;
@@ -960,7 +960,7 @@ struct CanopenDriveSim::Impl {
     }
   }
 
-  void TimeEventsLocked(Duration now) {
+  void TimeEventsLocked(common::Duration now) {
     const Cia402State state = device.state();
     const auto mode = DriveModeFromValue(device.mode_display());
     const bool sync_driven = state == Cia402State::kOperationEnabled && mode &&
@@ -983,7 +983,7 @@ struct CanopenDriveSim::Impl {
   }
 
   // ------------------------------------------------------------------------------ frames
-  void HandleFrameLocked(const CanFrame& f, Duration now) {
+  void HandleFrameLocked(const CanFrame& f, common::Duration now) {
     if (disconnected || f.extended) return;
     if (auto nmt_message = DecodeNmt(f)) {
       HandleNmtLocked(*nmt_message, now);
@@ -1008,7 +1008,7 @@ struct CanopenDriveSim::Impl {
 
   // One pass: `first` (already received) and every frame waiting, then the time events.
   void ServeLocked(const CanFrame* first) {
-    Duration now = clock->Now();
+    common::Duration now = clock->Now();
     if (!booted) BootLocked(now);
     if (first != nullptr) HandleFrameLocked(*first, now);
     CanFrame f;
@@ -1033,7 +1033,7 @@ struct CanopenDriveSim::Impl {
   }
 };
 
-CanopenDriveSim::CanopenDriveSim(CanBus* bus, Clock* clock, Options options) {
+CanopenDriveSim::CanopenDriveSim(CanBus* bus, common::Clock* clock, Options options) {
   std::string problems;
   if (options.node < 1 || options.node > kMaxNodeId) {
     problems += " node " + std::to_string(options.node) + " is outside 1..127;";
@@ -1044,7 +1044,7 @@ CanopenDriveSim::CanopenDriveSim(CanBus* bus, Clock* clock, Options options) {
   if (!device_problems.empty()) problems += " device: " + device_problems + ";";
   if (!problems.empty()) {
     problems.pop_back();
-    throw ConfigError("CanopenDriveSim:" + problems);
+    throw common::ConfigError("CanopenDriveSim:" + problems);
   }
   impl_ = std::make_unique<Impl>(bus, clock, options);
 }
@@ -1082,7 +1082,7 @@ void CanopenDriveSim::DropNextReplies(int n) {
 
 void CanopenDriveSim::SetReplyDelay(std::chrono::microseconds delay) {
   std::lock_guard<std::mutex> lock(impl_->mutex);
-  impl_->reply_delay = std::max(Duration::zero(), Duration(delay));
+  impl_->reply_delay = std::max(common::Duration::zero(), common::Duration(delay));
 }
 
 void CanopenDriveSim::SendMalformedSdoReplies(int n) {

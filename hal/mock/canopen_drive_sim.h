@@ -50,9 +50,9 @@
 #include <memory>
 #include <string>
 
+#include "common/clock.h"
 #include "hal/can/can_bus.h"
 #include "hal/canopen/canopen_codec.h"
-#include "hal/common/clock.h"
 #include "hal/mock/cia402_device.h"
 
 namespace kinevis::hal {
@@ -70,7 +70,7 @@ class CanopenDriveSim {
   };
 
   // bus and clock must outlive the simulator. Throws ConfigError for a bad node id or options.
-  CanopenDriveSim(CanBus* bus, Clock* clock, Options options);
+  CanopenDriveSim(CanBus* bus, common::Clock* clock, Options options);
   ~CanopenDriveSim();  // Stop()
   CanopenDriveSim(const CanopenDriveSim&) = delete;
   CanopenDriveSim& operator=(const CanopenDriveSim&) = delete;

@@ -99,7 +99,7 @@ std::string Cia402Device::ValidateOptions(const Options& o) {
 
 Cia402Device::Cia402Device(Options options) : options_(options), model_(options.limits) {
   const std::string problems = ValidateOptions(options_);
-  if (!problems.empty()) throw ConfigError("Cia402Device options: " + problems);
+  if (!problems.empty()) throw common::ConfigError("Cia402Device options: " + problems);
   options_.supported_modes &= kImplementedModes;
   std::lock_guard<std::mutex> lock(mutex_);
   ResetLocked();

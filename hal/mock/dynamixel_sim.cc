@@ -51,8 +51,8 @@ struct DynamixelSim::Servo {
   const DxlControlTable table;
   std::vector<uint8_t> memory;
   double position_ticks = 0.0;  // exact; the register holds it rounded
-  Duration last_update{0};
-  Duration epoch{0};  // of the realtime tick
+  common::Duration last_update{0};
+  common::Duration epoch{0};  // of the realtime tick
   bool overloaded = false;
   bool no_reply = false;
   std::chrono::steady_clock::time_point silent_until{};  // rebooting until then
@@ -77,29 +77,29 @@ struct DynamixelSim::Servo {
   const DxlRegister* tick;  // may be null
 };
 
-DynamixelSim::DynamixelSim(std::unique_ptr<SerialPort> port, Options options, Clock* clock)
+DynamixelSim::DynamixelSim(std::unique_ptr<SerialPort> port, Options options, common::Clock* clock)
     : port_(std::move(port)),
       protocol_(options.protocol),
       reboot_time_(options.reboot_time),
       clock_(clock),
       name_("dynamixel-sim:" + port_->name()) {
   if (protocol_ != 1 && protocol_ != 2) {
-    throw ConfigError(name_ + ": protocol " + std::to_string(protocol_) + " is not 1 or 2");
+    throw common::ConfigError(name_ + ": protocol " + std::to_string(protocol_) + " is not 1 or 2");
   }
-  if (options.servos.empty()) throw ConfigError(name_ + ": no servos");
+  if (options.servos.empty()) throw common::ConfigError(name_ + ": no servos");
   const int max_id = protocol_ == 1 ? 253 : 252;
   for (const ServoSpec& spec : options.servos) {
     const std::string who = name_ + ": servo " + std::to_string(spec.id);
     if (spec.id > max_id) {
-      throw ConfigError(who + ": id out of range 0.." + std::to_string(max_id));
+      throw common::ConfigError(who + ": id out of range 0.." + std::to_string(max_id));
     }
     if (spec.table.protocol() != protocol_) {
-      throw ConfigError(who + ": control table " + spec.table.model() + " is for protocol " +
-                        std::to_string(spec.table.protocol()) + ".0, the bus speaks " +
-                        std::to_string(protocol_) + ".0");
+      throw common::ConfigError(who + ": control table " + spec.table.model() +
+                                " is for protocol " + std::to_string(spec.table.protocol()) +
+                                ".0, the bus speaks " + std::to_string(protocol_) + ".0");
     }
     for (const auto& other : servos_) {
-      if (other->original_id == spec.id) throw ConfigError(who + ": id given twice");
+      if (other->original_id == spec.id) throw common::ConfigError(who + ": id given twice");
     }
     auto s = std::make_unique<Servo>(spec.id, spec.table);
     s->memory.assign(s->table.size(), 0);
@@ -144,7 +144,7 @@ DynamixelSim::Servo& DynamixelSim::At(uint8_t original_id) const {
   for (const auto& s : servos_) {
     if (s->original_id == original_id) return *s;
   }
-  throw ConfigError(name_ + ": no servo " + std::to_string(original_id));
+  throw common::ConfigError(name_ + ": no servo " + std::to_string(original_id));
 }
 
 int64_t DynamixelSim::GetLocked(const Servo& s, const DxlRegister& reg) const {
@@ -160,8 +160,8 @@ int64_t DynamixelSim::Register(uint8_t id, const std::string& register_name) con
   Servo& s = At(id);
   const DxlRegister* reg = s.table.Find(register_name);
   if (reg == nullptr) {
-    throw ConfigError(name_ + ": servo " + std::to_string(id) + " (" + s.table.model() +
-                      ") has no register " + register_name);
+    throw common::ConfigError(name_ + ": servo " + std::to_string(id) + " (" + s.table.model() +
+                              ") has no register " + register_name);
   }
   UpdateLocked(s);
   return GetLocked(s, *reg);
@@ -172,8 +172,8 @@ void DynamixelSim::SetRegister(uint8_t id, const std::string& register_name, int
   Servo& s = At(id);
   const DxlRegister* reg = s.table.Find(register_name);
   if (reg == nullptr) {
-    throw ConfigError(name_ + ": servo " + std::to_string(id) + " (" + s.table.model() +
-                      ") has no register " + register_name);
+    throw common::ConfigError(name_ + ": servo " + std::to_string(id) + " (" + s.table.model() +
+                              ") has no register " + register_name);
   }
   UpdateLocked(s);
   SetLocked(s, *reg, raw);
@@ -241,7 +241,7 @@ bool DynamixelSim::ListeningLocked(const Servo& s) const {
 }
 
 void DynamixelSim::UpdateLocked(Servo& s) const {
-  const Duration now = clock_->Now();
+  const common::Duration now = clock_->Now();
   const double dt = std::max(0.0, std::chrono::duration<double>(now - s.last_update).count());
   s.last_update = now;
   const double rad_per_tick = s.present_position->scale;

@@ -49,7 +49,7 @@
 #include <thread>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/dynamixel/control_table.h"
 #include "hal/serial/serial_port.h"
 
@@ -80,7 +80,7 @@ class DynamixelSim {
   // problem: no servos, a protocol that is not 1 or 2, an id out of range or given twice, a table
   // of the other protocol.
   DynamixelSim(std::unique_ptr<SerialPort> port, Options options,
-               Clock* clock = &SteadyClock::Instance());
+               common::Clock* clock = &common::SteadyClock::Instance());
   ~DynamixelSim();  // Stop()
   DynamixelSim(const DynamixelSim&) = delete;
   DynamixelSim& operator=(const DynamixelSim&) = delete;
@@ -144,7 +144,7 @@ class DynamixelSim {
   const std::unique_ptr<SerialPort> port_;
   const int protocol_;
   const std::chrono::milliseconds reboot_time_;
-  Clock* const clock_;
+  common::Clock* const clock_;
   const std::string name_;
 
   std::atomic<bool> running_{false};

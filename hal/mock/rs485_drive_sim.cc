@@ -84,8 +84,8 @@ struct Rs485DriveSim::Impl {
     DriveOptions options;
     std::unique_ptr<Cia402Device> device;
     std::array<uint16_t, kOutputBlockSize> outputs{};
-    Duration last_request{0};
-    Duration last_step{0};
+    common::Duration last_request{0};
+    common::Duration last_step{0};
     bool watchdog_tripped = false;
     bool silent = false;
     int corrupt = 0;
@@ -93,7 +93,7 @@ struct Rs485DriveSim::Impl {
 
   int fd;
   std::string device_path;
-  Clock* clock;
+  common::Clock* clock;
   Options options;
   std::string backend;
   std::string name;
@@ -117,7 +117,8 @@ struct Rs485DriveSim::Impl {
   Drive& Get(int unit) {
     Drive* d = Find(unit);
     if (d == nullptr) {
-      throw ConfigError(name + ": no drive with unit " + std::to_string(unit) + " on this line");
+      throw common::ConfigError(name + ": no drive with unit " + std::to_string(unit) +
+                                " on this line");
     }
     return *d;
   }
@@ -259,7 +260,7 @@ struct Rs485DriveSim::Impl {
       return;
     }
     ++stats.requests;
-    const Duration now = clock->Now();
+    const common::Duration now = clock->Now();
     uint16_t values[128];
     if (unit == 0) {
       // Broadcast: writes are executed by every drive that listens, and never answered.
@@ -452,7 +453,7 @@ struct Rs485DriveSim::Impl {
 
   // ---------------------------------------------------------------------------- time
   void StepLocked() {
-    const Duration now = clock->Now();
+    const common::Duration now = clock->Now();
     for (Drive& d : drives) {
       const uint16_t watchdog_ms = d.outputs[kRegWatchdogMs];
       if (watchdog_ms != 0 && !d.watchdog_tripped &&
@@ -481,7 +482,8 @@ struct Rs485DriveSim::Impl {
   }
 };
 
-Rs485DriveSim::Rs485DriveSim(int master_fd, std::string device_path, Clock* clock, Options options)
+Rs485DriveSim::Rs485DriveSim(int master_fd, std::string device_path, common::Clock* clock,
+                             Options options)
     : impl_(std::make_unique<Impl>()) {
   Impl& m = *impl_;
   m.fd = master_fd;
@@ -512,10 +514,10 @@ Rs485DriveSim::Rs485DriveSim(int master_fd, std::string device_path, Clock* cloc
   }
   if (!problems.empty()) {
     problems.pop_back();
-    throw ConfigError(m.name + ":" + problems);
+    throw common::ConfigError(m.name + ":" + problems);
   }
   m.backend = "modbus-rtu:" + m.device_path + "@" + std::to_string(options.baud) + ",8E1";
-  const Duration now = clock->Now();
+  const common::Duration now = clock->Now();
   m.drives.reserve(options.drives.size());
   for (const DriveOptions& o : options.drives) {
     Impl::Drive d;
@@ -539,7 +541,7 @@ void Rs485DriveSim::Start() {
   {
     std::lock_guard<std::mutex> lock(impl_->mutex);
     // Real time starts now: no catch-up step over the time spent before Start().
-    const Duration now = impl_->clock->Now();
+    const common::Duration now = impl_->clock->Now();
     for (Impl::Drive& d : impl_->drives) d.last_step = now;
   }
   impl_->stepper = std::thread([this] { impl_->StepLoop(); });

@@ -31,7 +31,7 @@
 #include <string>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/mock/cia402_device.h"
 
 namespace kinevis::hal {
@@ -52,7 +52,7 @@ class Rs485DriveSim {
   // master_fd: the pty master (PtyPair::master_fd()), which must stay open until Stop();
   // device_path: the path hosts open (slave path or a link), used in backend() and logs.
   // Throws ConfigError for duplicate or out-of-range unit ids.
-  Rs485DriveSim(int master_fd, std::string device_path, Clock* clock, Options options);
+  Rs485DriveSim(int master_fd, std::string device_path, common::Clock* clock, Options options);
   ~Rs485DriveSim();
   Rs485DriveSim(const Rs485DriveSim&) = delete;
   Rs485DriveSim& operator=(const Rs485DriveSim&) = delete;

@@ -7,8 +7,8 @@
 #include <cstdio>
 #include <optional>
 
+#include "common/clock.h"
 #include "hal/can/slcan_codec.h"
-#include "hal/common/clock.h"
 #include "hal/common/error.h"
 
 namespace kinevis::hal {
@@ -27,8 +27,8 @@ void CheckField(const std::string& value, const char* what) {
   bool ok = value.size() == 4;
   for (char c : value) ok = ok && c > ' ' && c <= '~';
   if (!ok) {
-    throw ConfigError(std::string("SlcanAdapterSim: ") + what + " \"" + value +
-                      "\" is not exactly 4 printable characters");
+    throw common::ConfigError(std::string("SlcanAdapterSim: ") + what + " \"" + value +
+                              "\" is not exactly 4 printable characters");
   }
 }
 
@@ -285,8 +285,8 @@ void SlcanAdapterSim::BusLoop() {
       if (timestamps_) {
         // The adapter's free-running millisecond counter; the frame's bus time stands in for it
         // so that a simulated clock drives the timestamps too.
-        const Duration t =
-            frame.timestamp.count() != 0 ? frame.timestamp : SteadyClock::Instance().Now();
+        const common::Duration t =
+            frame.timestamp.count() != 0 ? frame.timestamp : common::SteadyClock::Instance().Now();
         const auto ms = std::chrono::duration_cast<milliseconds>(t).count();
         timestamp_ms = static_cast<uint16_t>(ms % (kSlcanMaxTimestampMs + 1));
       }

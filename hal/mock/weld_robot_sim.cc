@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <limits>
 
+#include "common/units.h"
 #include "hal/common/error.h"
 
 namespace kinevis::hal {
@@ -15,7 +16,6 @@ namespace {
 
 namespace wr = weld_robot;
 
-constexpr double kDeg = M_PI / 180.0;
 constexpr size_t kCompletedLogSize = 100000;
 constexpr int64_t kNsPerMs = 1'000'000;
 
@@ -26,16 +26,16 @@ int32_t JointUnits(double si) {
 }  // namespace
 
 std::array<WeldRobotSim::JointLimit, wr::kJointCount> WeldRobotSim::DefaultJointLimits() {
-  return {{{-170 * kDeg, 170 * kDeg, 90 * kDeg},
-           {-120 * kDeg, 120 * kDeg, 90 * kDeg},
+  return {{{-170 * common::kDeg, 170 * common::kDeg, 90 * common::kDeg},
+           {-120 * common::kDeg, 120 * common::kDeg, 90 * common::kDeg},
            {0.0, 0.500, 0.050},
-           {-180 * kDeg, 180 * kDeg, 90 * kDeg},
-           {-120 * kDeg, 120 * kDeg, 90 * kDeg}}};
+           {-180 * common::kDeg, 180 * common::kDeg, 90 * common::kDeg},
+           {-120 * common::kDeg, 120 * common::kDeg, 90 * common::kDeg}}};
 }
 
 WeldRobotSim::WeldRobotSim(const Options& options, std::unique_ptr<PtyPair> pty)
     : options_(options),
-      clock_(options.clock != nullptr ? options.clock : &SteadyClock::Instance()),
+      clock_(options.clock != nullptr ? options.clock : &common::SteadyClock::Instance()),
       pty_(std::move(pty)) {
   std::string problems;
   auto problem = [&](const std::string& p) { problems += (problems.empty() ? "" : "; ") + p; };
@@ -83,7 +83,7 @@ WeldRobotSim::WeldRobotSim(const Options& options, std::unique_ptr<PtyPair> pty)
   if (options.tick.count() <= 0) {
     problem("tick " + std::to_string(options.tick.count()) + " ms (need > 0)");
   }
-  if (!problems.empty()) throw ConfigError("weld robot simulator options: " + problems);
+  if (!problems.empty()) throw common::ConfigError("weld robot simulator options: " + problems);
 }
 
 std::unique_ptr<WeldRobotSim> WeldRobotSim::ListenTcp(const std::string& host, int port,
@@ -374,7 +374,7 @@ void WeldRobotSim::StepLocked(int64_t dt_ns) {
   }
 }
 
-void WeldRobotSim::Step(Duration dt) {
+void WeldRobotSim::Step(common::Duration dt) {
   server_->WithRegisters([&](ModbusRegisterMap& map) {
     StepLocked(std::max<int64_t>(0, dt.count()));
     PublishLocked(map);
@@ -383,7 +383,7 @@ void WeldRobotSim::Step(Duration dt) {
 
 void WeldRobotSim::Update() {
   server_->WithRegisters([&](ModbusRegisterMap& map) {
-    const Duration now = clock_->Now();
+    const common::Duration now = clock_->Now();
     if (now > last_update_) {
       StepLocked((now - last_update_).count());
       last_update_ = now;
@@ -438,7 +438,8 @@ void WeldRobotSim::StopAnswering(std::chrono::milliseconds duration) {
 void WeldRobotSim::ResumeAnswering() { server_->ResumeAnswering(); }
 
 void WeldRobotSim::RaiseAlarm(uint16_t code) {
-  if (code == 0) throw ConfigError(options_.name + ": RaiseAlarm(0): alarm code 0 means no alarm");
+  if (code == 0)
+    throw common::ConfigError(options_.name + ": RaiseAlarm(0): alarm code 0 means no alarm");
   server_->WithRegisters([&](ModbusRegisterMap& map) {
     RaiseAlarmLocked(code, 0);
     PublishLocked(map);

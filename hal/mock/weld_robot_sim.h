@@ -50,7 +50,7 @@
 #include <thread>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/modbus/modbus_server.h"
 #include "hal/serial/pty_pair.h"
 #include "hal/weld/weld_robot_registers.h"
@@ -81,7 +81,7 @@ class WeldRobotSim {
     int unit = 1;                         // Modbus unit id, 1..247
     bool run_executor = true;             // the real-time executor thread
     std::chrono::milliseconds tick{2};    // executor period, > 0
-    Clock* clock = nullptr;               // executor's clock; nullptr: SteadyClock
+    common::Clock* clock = nullptr;       // executor's clock; nullptr: SteadyClock
     std::string name = "weld-robot-sim";  // log prefix
   };
 
@@ -139,7 +139,7 @@ class WeldRobotSim {
   const Options& options() const { return options_; }
 
   // Advances the simulation by dt (>= 0): motion, segment completion, arc.
-  void Step(Duration dt);
+  void Step(common::Duration dt);
   // Advances the simulation to options.clock->Now() (by the time since the previous Update(), or
   // since construction). The executor thread calls this every tick.
   void Update();
@@ -187,7 +187,7 @@ class WeldRobotSim {
   void WriteIdentity(ModbusRegisterMap& map) const;
 
   const Options options_;
-  Clock* const clock_;
+  common::Clock* const clock_;
   std::unique_ptr<PtyPair> pty_;  // RTU only; outlives server_
   std::unique_ptr<ModbusServer> server_;
 
@@ -210,7 +210,7 @@ class WeldRobotSim {
   bool arc_enabled_ = false;
   bool arc_on_ = false;
   uint16_t current_ = 0, voltage_ = 0, wire_feed_ = 0;  // register units
-  Duration last_update_{0};
+  common::Duration last_update_{0};
   Statistics stats_;
   std::deque<uint32_t> completed_log_;
 

@@ -483,7 +483,7 @@ std::unique_ptr<ModbusClient> ModbusClient::Open(const ModbusBackendSpec& spec) 
       problem("stop bits " + std::to_string(s.stop_bits) + " is not 1 or 2");
     }
   }
-  if (!problems.empty()) throw ConfigError("backend \"" + name + "\": " + problems);
+  if (!problems.empty()) throw common::ConfigError("backend \"" + name + "\": " + problems);
 
   if (impl->tcp) {
     const std::string port = std::to_string(spec.port);
@@ -540,8 +540,8 @@ std::unique_ptr<ModbusClient> ModbusClient::Open(const ModbusBackendSpec& spec) 
   }
   modbus_set_error_recovery(impl->ctx, MODBUS_ERROR_RECOVERY_NONE);
   if (modbus_set_slave(impl->ctx, spec.unit) != 0) {
-    throw ConfigError("backend \"" + name + "\": unit " + std::to_string(spec.unit) +
-                      " refused by libmodbus");
+    throw common::ConfigError("backend \"" + name + "\": unit " + std::to_string(spec.unit) +
+                              " refused by libmodbus");
   }
   const auto timeout_us = static_cast<uint32_t>(spec.timeout_ms) * 1000U;
   modbus_set_response_timeout(impl->ctx, timeout_us / 1'000'000U, timeout_us % 1'000'000U);

@@ -130,7 +130,7 @@ void ValidateOptions(const ModbusServer::Options& o, const std::string& what, bo
       problem("stop_bits " + std::to_string(o.stop_bits) + " is not 1 or 2");
     }
   }
-  if (!problems.empty()) throw ConfigError("Modbus server " + what + ": " + problems);
+  if (!problems.empty()) throw common::ConfigError("Modbus server " + what + ": " + problems);
 }
 
 }  // namespace
@@ -696,8 +696,8 @@ std::unique_ptr<ModbusServer> ModbusServer::ListenTcp(const std::string& host, i
   const std::string where = HostPort(host, port);
   ValidateOptions(options, "on " + where, /*rtu=*/false);
   if (port < 0 || port > 65535) {
-    throw ConfigError("Modbus server on " + where + ": port " + std::to_string(port) +
-                      " is not in 0..65535");
+    throw common::ConfigError("Modbus server on " + where + ": port " + std::to_string(port) +
+                              " is not in 0..65535");
   }
   std::unique_ptr<ModbusServer> server(new ModbusServer());
   Impl& impl = *server->impl_;
@@ -771,9 +771,10 @@ std::unique_ptr<ModbusServer> ModbusServer::ServeRtu(int master_fd, const std::s
                                                      const Options& options) {
   ValidateOptions(options, "on " + device_path, /*rtu=*/true);
   if (master_fd < 0 || device_path.empty()) {
-    throw ConfigError("Modbus RTU server on \"" + device_path + "\": pty master descriptor " +
-                      std::to_string(master_fd) + (device_path.empty() ? " and empty path" : "") +
-                      " (need an open descriptor and the slave path)");
+    throw common::ConfigError("Modbus RTU server on \"" + device_path +
+                              "\": pty master descriptor " + std::to_string(master_fd) +
+                              (device_path.empty() ? " and empty path" : "") +
+                              " (need an open descriptor and the slave path)");
   }
   std::unique_ptr<ModbusServer> server(new ModbusServer());
   Impl& impl = *server->impl_;

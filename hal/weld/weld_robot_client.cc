@@ -86,11 +86,11 @@ std::unique_ptr<WeldRobotClient> WeldRobotClient::Open(std::string_view backend,
 WeldRobotClient::WeldRobotClient(std::unique_ptr<ModbusClient> modbus, Options options)
     : modbus_(std::move(modbus)),
       options_(std::move(options)),
-      clock_(options_.clock != nullptr ? options_.clock : &SteadyClock::Instance()) {
+      clock_(options_.clock != nullptr ? options_.clock : &common::SteadyClock::Instance()) {
   name_ = options_.name + " (" + modbus_->name() + ")";
   if (options_.poll_period.count() <= 0) {
-    throw ConfigError(name_ + ": poll_period " + std::to_string(options_.poll_period.count()) +
-                      " ms is not positive");
+    throw common::ConfigError(name_ + ": poll_period " +
+                              std::to_string(options_.poll_period.count()) + " ms is not positive");
   }
 }
 
@@ -106,20 +106,22 @@ std::error_code WeldRobotClient::Fail(std::error_code ec, const std::string& ope
   last_error_text_ = name_ + ": " + operation + ": " + cause;
   if (IsLinkFailure(ec)) {
     ++counters_.link_faults;
-    if (lifecycle_ != DeviceLifecycle::kUnconfigured) lifecycle_ = DeviceLifecycle::kFault;
+    if (lifecycle_ != common::DeviceLifecycle::kUnconfigured)
+      lifecycle_ = common::DeviceLifecycle::kFault;
   }
-  if (ec.category() == WeldRobotAlarmCategory() && lifecycle_ != DeviceLifecycle::kUnconfigured) {
-    lifecycle_ = DeviceLifecycle::kFault;
+  if (ec.category() == WeldRobotAlarmCategory() &&
+      lifecycle_ != common::DeviceLifecycle::kUnconfigured) {
+    lifecycle_ = common::DeviceLifecycle::kFault;
   }
   spdlog::error("{}", last_error_text_);
   return ec;
 }
 
 std::error_code WeldRobotClient::RequireActive(const char* operation) {
-  if (lifecycle_ == DeviceLifecycle::kActive) return {};
+  if (lifecycle_ == common::DeviceLifecycle::kActive) return {};
   return Fail(Errc::kNotActive, operation,
               std::string("refused: the driver is ") + ToString(lifecycle_) + ", not active" +
-                  (lifecycle_ == DeviceLifecycle::kFault ? " (AlarmReset() first)" : ""));
+                  (lifecycle_ == common::DeviceLifecycle::kFault ? " (AlarmReset() first)" : ""));
 }
 
 void WeldRobotClient::Configure() {
@@ -172,7 +174,7 @@ void WeldRobotClient::Configure() {
   }
   if (!problems.empty()) throw HalError(name_, "configure", problems);
   identity_ = id;
-  lifecycle_ = DeviceLifecycle::kConfigured;
+  lifecycle_ = common::DeviceLifecycle::kConfigured;
   spdlog::info("{}: configured: serial number {}, map version {}, buffer of {} segments", name_,
                id.serial_number, id.map_version, id.buffer_capacity);
 }
@@ -206,7 +208,8 @@ std::error_code WeldRobotClient::ReadStateRaw(WeldRobotState* state) {
   s.weld.wire_feed_speed = *at(wr::kRegActualWireFeed) / wr::kWireFeedUnitsPerMetrePerSecond;
   // A robot reporting an alarm is in fault for the host too; each alarm is logged once.
   if (s.alarm_code != 0) {
-    if (lifecycle_ != DeviceLifecycle::kUnconfigured) lifecycle_ = DeviceLifecycle::kFault;
+    if (lifecycle_ != common::DeviceLifecycle::kUnconfigured)
+      lifecycle_ = common::DeviceLifecycle::kFault;
     if (s.alarm_code != last_alarm_seen_) {
       ++counters_.alarms;
       spdlog::error("{}: alarm {} (code {}){}", name_, s.alarm_name, s.alarm_code,
@@ -221,7 +224,7 @@ std::error_code WeldRobotClient::ReadStateRaw(WeldRobotState* state) {
 }
 
 std::error_code WeldRobotClient::ReadState(WeldRobotState* state) {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     return Fail(Errc::kNotActive, "read state", "refused: Configure() first");
   }
   if (std::error_code ec = ReadStateRaw(state)) {
@@ -241,12 +244,12 @@ std::error_code WeldRobotClient::ExplainRefusal(std::error_code ec, WeldRobotSta
 }
 
 std::error_code WeldRobotClient::Activate() {
-  if (lifecycle_ == DeviceLifecycle::kActive) return {};
-  if (lifecycle_ != DeviceLifecycle::kConfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kActive) return {};
+  if (lifecycle_ != common::DeviceLifecycle::kConfigured) {
     return Fail(Errc::kNotActive, "activate",
                 std::string("refused: the driver is ") + ToString(lifecycle_) +
-                    (lifecycle_ == DeviceLifecycle::kFault ? " (AlarmReset() first)"
-                                                           : " (Configure() first)"));
+                    (lifecycle_ == common::DeviceLifecycle::kFault ? " (AlarmReset() first)"
+                                                                   : " (Configure() first)"));
   }
   WeldRobotState s;
   if (std::error_code ec = ReadStateRaw(&s)) {
@@ -257,7 +260,7 @@ std::error_code WeldRobotClient::Activate() {
                 std::string("the robot reports alarm ") + s.alarm_name + " (code " +
                     std::to_string(s.alarm_code) + "); AlarmReset() first");
   }
-  lifecycle_ = DeviceLifecycle::kActive;
+  lifecycle_ = common::DeviceLifecycle::kActive;
   spdlog::info("{}: active", name_);
   return {};
 }
@@ -314,7 +317,7 @@ std::error_code WeldRobotClient::ArcOn() {
 }
 
 std::error_code WeldRobotClient::ArcOff() {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     return Fail(Errc::kNotActive, "arc off", "refused: Configure() first");
   }
   if (std::error_code ec = SendCommand(wr::Command::kArcOff)) {
@@ -325,7 +328,7 @@ std::error_code WeldRobotClient::ArcOff() {
 }
 
 std::error_code WeldRobotClient::Stop() {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     return Fail(Errc::kNotActive, "stop", "refused: Configure() first");
   }
   if (std::error_code ec = SendCommand(wr::Command::kStop)) {
@@ -346,7 +349,7 @@ std::error_code WeldRobotClient::Stop() {
 }
 
 std::error_code WeldRobotClient::AlarmReset() {
-  if (lifecycle_ == DeviceLifecycle::kUnconfigured) {
+  if (lifecycle_ == common::DeviceLifecycle::kUnconfigured) {
     return Fail(Errc::kNotActive, "alarm reset", "refused: Configure() first");
   }
   if (std::error_code ec = SendCommand(wr::Command::kAlarmReset)) {
@@ -361,7 +364,7 @@ std::error_code WeldRobotClient::AlarmReset() {
                 std::string("the robot keeps alarm ") + s.alarm_name + " (code " +
                     std::to_string(s.alarm_code) + ")");
   }
-  if (lifecycle_ == DeviceLifecycle::kFault) lifecycle_ = DeviceLifecycle::kActive;
+  if (lifecycle_ == common::DeviceLifecycle::kFault) lifecycle_ = common::DeviceLifecycle::kActive;
   spdlog::info("{}: alarm reset; {}", name_, ToString(lifecycle_));
   return {};
 }
@@ -398,7 +401,7 @@ std::error_code WeldRobotClient::StreamTrajectory(const std::vector<WeldTrajecto
   WeldStreamReport& rep = report != nullptr ? *report : local;
   rep = WeldStreamReport();
   rep.total = points.size();
-  const Duration start = clock_->Now();
+  const common::Duration start = clock_->Now();
   auto finish = [&](std::error_code ec) {
     rep.elapsed = clock_->Now() - start;
     if (ec) rep.message = last_error_text_;
@@ -477,10 +480,10 @@ std::error_code WeldRobotClient::StreamTrajectory(const std::vector<WeldTrajecto
     }
   }
 
-  const Duration deadline =
+  const common::Duration deadline =
       start + (options.timeout.count() > 0
-                   ? Duration(options.timeout)
-                   : std::chrono::duration_cast<Duration>(
+                   ? common::Duration(options.timeout)
+                   : std::chrono::duration_cast<common::Duration>(
                          std::chrono::duration<double>(total_duration) + options.margin));
   const uint32_t base = state.last_sequence;  // segment i carries base + 1 + i
   const uint64_t interruptions_at_start = LinkInterruptions();

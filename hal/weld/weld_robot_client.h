@@ -8,7 +8,7 @@
 // durations s; welding current A, arc voltage V, wire feed speed m/s. The conversion to register
 // units happens in this driver only.
 //
-// Lifecycle (STYLE.md, hal::DeviceLifecycle): Open() -> unconfigured; Configure() reads the
+// Lifecycle (STYLE.md, common::DeviceLifecycle): Open() -> unconfigured; Configure() reads the
 // identity and limit registers -> configured (state readable); Activate() -> active (commands
 // accepted); an alarm the robot reports, or a link that failed (no answer, connection lost) ->
 // fault. AlarmReset() brings a faulted robot back to active. Motion and arc commands are refused
@@ -40,7 +40,7 @@
 #include <system_error>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/drive/motor_drive.h"
 #include "hal/modbus/modbus_client.h"
 #include "hal/weld/weld_robot_registers.h"
@@ -146,7 +146,7 @@ struct WeldStreamReport {
   // After a failure: STOP was acknowledged and the state read back shows motion stopped, arc off.
   bool safe_state_confirmed = false;
   std::string message;  // empty on success; else last_error_text()
-  Duration elapsed{0};
+  common::Duration elapsed{0};
 };
 
 struct WeldRobotClientCounters {
@@ -162,7 +162,7 @@ class WeldRobotClient {
  public:
   struct Options {
     std::string name = "weld-robot";            // the device name; name() appends the backend
-    Clock* clock = nullptr;                     // for waiting on the buffer; nullptr: SteadyClock
+    common::Clock* clock = nullptr;             // for waiting on the buffer; nullptr: SteadyClock
     std::chrono::milliseconds poll_period{10};  // status poll while the buffer is full, > 0
   };
 
@@ -180,7 +180,7 @@ class WeldRobotClient {
 
   // "weld-robot (modbus-tcp:127.0.0.1:1502)": in every log line and error.
   const std::string& name() const { return name_; }
-  DeviceLifecycle lifecycle() const { return lifecycle_; }
+  common::DeviceLifecycle lifecycle() const { return lifecycle_; }
 
   // Set-up: reads and checks the identity and limit registers -> configured. Throws HalError
   // naming the device, "configure" and the cause (no answer, wrong magic, unsupported map
@@ -255,9 +255,9 @@ class WeldRobotClient {
 
   std::unique_ptr<ModbusClient> modbus_;
   Options options_;
-  Clock* clock_;
+  common::Clock* clock_;
   std::string name_;
-  DeviceLifecycle lifecycle_ = DeviceLifecycle::kUnconfigured;
+  common::DeviceLifecycle lifecycle_ = common::DeviceLifecycle::kUnconfigured;
   WeldRobotIdentity identity_;
   uint16_t last_alarm_seen_ = 0;
   std::string last_error_text_;

@@ -8,24 +8,17 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/check.h"
+#include "common/units.h"
+
 namespace kinevis::robots {
 namespace {
 
-// Tier-1 check: a broken invariant (caller bug) aborts with file and line.
-#define KINEVIS_DIAMOND_DEMAND(cond)                                                    \
-  do {                                                                                  \
-    if (!(cond)) {                                                                      \
-      std::fprintf(stderr, "%s:%d: failed invariant: %s\n", __FILE__, __LINE__, #cond); \
-      std::abort();                                                                     \
-    }                                                                                   \
-  } while (false)
-
-constexpr double kPi = 3.14159265358979323846;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 // Below this |sin γ| the tool axis is treated as lying on z_O (φ undefined).
 constexpr double kMinSinGamma = 1e-12;
 
-double DegToRad(double deg) { return deg * kPi / 180.0; }
+double DegToRad(double deg) { return deg * common::kPi / 180.0; }
 
 // The limits shared by both seed parameter sets (assumptions; the seed gives none, README.md).
 DiamondModel WithSeedLimits(double radius, double alpha, double beta) {
@@ -34,12 +27,12 @@ DiamondModel WithSeedLimits(double radius, double alpha, double beta) {
   model.alpha = alpha;
   model.beta = beta;
   model.joint_offsets = {0.0, 0.0};
-  model.theta_min = {0.0, -kPi / 2};
-  model.theta_max = {3 * kPi / 2, kPi};
+  model.theta_min = {0.0, -common::kPi / 2};
+  model.theta_max = {3 * common::kPi / 2, common::kPi};
   model.separation_min = DegToRad(20.0);
   model.separation_max = DegToRad(170.0);
   model.phi_min = 0.0;
-  model.phi_max = kPi;
+  model.phi_max = common::kPi;
   model.gamma_min = DegToRad(30.0);
   model.gamma_max = DegToRad(85.0);
   return model;
@@ -97,11 +90,11 @@ std::string DiamondModel::Validate() const {
   if (!std::isfinite(radius) || radius <= 0.0) {
     errors << "radius = " << radius << " must be finite and > 0 m; ";
   }
-  const bool alpha_ok = std::isfinite(alpha) && alpha > 0.0 && alpha < kPi;
-  const bool beta_ok = std::isfinite(beta) && beta > 0.0 && beta < kPi;
+  const bool alpha_ok = std::isfinite(alpha) && alpha > 0.0 && alpha < common::kPi;
+  const bool beta_ok = std::isfinite(beta) && beta > 0.0 && beta < common::kPi;
   if (!alpha_ok) errors << "alpha = " << alpha << " must be in (0, pi) rad; ";
   if (!beta_ok) errors << "beta = " << beta << " must be in (0, pi) rad; ";
-  if (alpha_ok && beta_ok && !(alpha + beta < kPi)) {
+  if (alpha_ok && beta_ok && !(alpha + beta < common::kPi)) {
     // Eq. (35)'s denominator cα + cβ must be > 0: otherwise the stretched limbs reach past −z_O
     // and γ leaves [0, π].
     errors << "alpha + beta = " << alpha + beta << " must be < pi rad; ";
@@ -117,7 +110,7 @@ std::string DiamondModel::Validate() const {
     }
   }
   if (!std::isfinite(separation_min) || !std::isfinite(separation_max) || !(separation_min > 0.0) ||
-      !(separation_min < separation_max) || !(separation_max < 2 * kPi)) {
+      !(separation_min < separation_max) || !(separation_max < 2 * common::kPi)) {
     errors << "separation_min = " << separation_min << ", separation_max = " << separation_max
            << " must satisfy 0 < min < max < 2 pi rad; ";
   }
@@ -126,7 +119,7 @@ std::string DiamondModel::Validate() const {
            << " must be finite with min < max; ";
   }
   if (!std::isfinite(gamma_min) || !std::isfinite(gamma_max) || !(gamma_min >= 0.0) ||
-      !(gamma_min < gamma_max) || !(gamma_max <= kPi)) {
+      !(gamma_min < gamma_max) || !(gamma_max <= common::kPi)) {
     errors << "gamma_min = " << gamma_min << ", gamma_max = " << gamma_max
            << " must satisfy 0 <= min < max <= pi rad; ";
   }
@@ -142,7 +135,9 @@ DiamondModel DiamondModel::Checked(const DiamondModel& model) {
 }
 
 // Seed 001, Table I.
-DiamondModel DiamondModel::APriori() { return WithSeedLimits(0.2000, kPi / 4, kPi / 4); }
+DiamondModel DiamondModel::APriori() {
+  return WithSeedLimits(0.2000, common::kPi / 4, common::kPi / 4);
+}
 DiamondModel DiamondModel::SeedIdentified() { return WithSeedLimits(0.2221, 0.7634, 0.8037); }
 
 const char* ToString(DiamondReach reach) {
@@ -254,7 +249,7 @@ std::string DiamondReachability::Describe() const {
 
 DiamondReachability ForwardKinematics(const DiamondModel& model, const Eigen::Vector2d& q,
                                       DiamondData* data) {
-  KINEVIS_DIAMOND_DEMAND(data != nullptr);
+  KINEVIS_DEMAND(data != nullptr);
   DiamondData& d = *data;
   d = DiamondData{};
   d.q = q;
@@ -300,7 +295,7 @@ DiamondReachability ForwardKinematics(const DiamondModel& model, const Eigen::Ve
 
 DiamondReachability InverseKinematics(const DiamondModel& model, const Eigen::Vector2d& task,
                                       Eigen::Vector2d* q) {
-  KINEVIS_DIAMOND_DEMAND(q != nullptr);
+  KINEVIS_DEMAND(q != nullptr);
   DiamondReachability reach;
   for (int i = 0; i < 2; ++i) {
     if (!std::isfinite(task[i])) reach.Add(DiamondReach::kInvalidInput, i, task[i], 0.0);
@@ -333,7 +328,7 @@ DiamondReachability InverseKinematics(const DiamondModel& model, const Eigen::Ve
 
 DiamondReachability InverseKinematicsFromDirection(const DiamondModel& model,
                                                    const Eigen::Vector3d& u_O, Eigen::Vector2d* q) {
-  KINEVIS_DIAMOND_DEMAND(q != nullptr);
+  KINEVIS_DEMAND(q != nullptr);
   const double norm = u_O.norm();
   if (!std::isfinite(norm) || norm == 0.0) {
     DiamondReachability reach;
@@ -351,7 +346,7 @@ DiamondReachability CheckWorkspace(const DiamondModel& model, const Eigen::Vecto
 }
 
 Eigen::Matrix2d TaskJacobian(const DiamondData& data) {
-  KINEVIS_DIAMOND_DEMAND(data.valid);  // call ForwardKinematics() first
+  KINEVIS_DEMAND(data.valid);  // call ForwardKinematics() first
   // φ = (θ_1 + θ_2)/2, γ = γ(A), A = (θ_1 − θ_2)/2.
   const double g = data.dgamma_dA;
   Eigen::Matrix2d J;
@@ -360,7 +355,7 @@ Eigen::Matrix2d TaskJacobian(const DiamondData& data) {
 }
 
 Matrix32d ToolPointJacobian(const DiamondModel& model, const DiamondData& data) {
-  KINEVIS_DIAMOND_DEMAND(data.valid);
+  KINEVIS_DEMAND(data.valid);
   const double phi = data.task[0];
   const double gamma = data.task[1];
   const double sp = std::sin(phi);
@@ -376,8 +371,8 @@ Matrix32d ToolPointJacobian(const DiamondModel& model, const DiamondData& data) 
 
 DiamondSingularityReport AnalyzeSingularity(const DiamondModel& model, const DiamondData& data,
                                             double max_condition) {
-  KINEVIS_DIAMOND_DEMAND(data.valid);
-  KINEVIS_DIAMOND_DEMAND(max_condition > 1.0);
+  KINEVIS_DEMAND(data.valid);
+  KINEVIS_DEMAND(max_condition > 1.0);
   DiamondSingularityReport report;
   // The rows of TaskJacobian are orthogonal with norms 1/√2 and |γ_A|/√2.
   const double g = std::abs(data.dgamma_dA);

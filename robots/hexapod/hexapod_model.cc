@@ -9,32 +9,19 @@
 #include <limits>
 #include <sstream>
 
+#include "common/check.h"
+#include "common/so3.h"
+#include "common/units.h"
+
 namespace kinevis::robots {
 namespace {
-
-// Tier-1 check: a broken invariant (caller bug) aborts with file and line.
-#define KINEVIS_HEXAPOD_DEMAND(cond)                                                    \
-  do {                                                                                  \
-    if (!(cond)) {                                                                      \
-      std::fprintf(stderr, "%s:%d: failed invariant: %s\n", __FILE__, __LINE__, #cond); \
-      std::abort();                                                                     \
-    }                                                                                   \
-  } while (false)
 
 // Below this a leg length is treated as zero (direction undefined).
 constexpr double kMinLegLength = 1e-12;
 // Attachment points closer than this are "coincident" for Validate().
 constexpr double kCoincidentDistance = 1e-6;
 
-constexpr double kPi = 3.14159265358979323846;
-
-double DegToRad(double deg) { return deg * kPi / 180.0; }
-
-Eigen::Matrix3d Skew(const Eigen::Vector3d& a) {
-  Eigen::Matrix3d s;
-  s << 0.0, -a.z(), a.y(), a.z(), 0.0, -a.x(), -a.y(), a.x(), 0.0;
-  return s;
-}
+double DegToRad(double deg) { return deg * common::kPi / 180.0; }
 
 const char* ToString(LegReach reach) {
   switch (reach) {
@@ -75,7 +62,7 @@ void CheckPoints(const std::array<Eigen::Vector3d, kHexapodLegs>& points, const 
 }
 
 void RequireIkData(const HexapodData& data) {
-  KINEVIS_HEXAPOD_DEMAND(data.valid);  // call InverseKinematics() first
+  KINEVIS_DEMAND(data.valid);  // call InverseKinematics() first
 }
 
 }  // namespace
@@ -159,7 +146,7 @@ std::string Reachability::Describe(const HexapodModel& model, const Vector6d& q)
 // seed 002, eq. (4)–(5), written in B instead of the mirror frame.
 Reachability InverseKinematics(const HexapodModel& model, const Eigen::Isometry3d& X_BP,
                                HexapodData* data) {
-  KINEVIS_HEXAPOD_DEMAND(data != nullptr);
+  KINEVIS_DEMAND(data != nullptr);
   const Eigen::Matrix3d R_BP = X_BP.linear();
   const Eigen::Vector3d p_BP = X_BP.translation();
   data->X_BP = X_BP;
@@ -223,14 +210,14 @@ double ConditionNumber(const Matrix6d& m) {
 // The seed's form (twist at the camera origin) is [I, −[A_j + q_j u_j]×]; see README.md.
 Matrix36d LegDirectionInteractionMatrix(const HexapodData& data, int leg) {
   RequireIkData(data);
-  KINEVIS_HEXAPOD_DEMAND(leg >= 0 && leg < kHexapodLegs);
+  KINEVIS_DEMAND(leg >= 0 && leg < kHexapodLegs);
   const double q = data.q[leg];
-  KINEVIS_HEXAPOD_DEMAND(q > kMinLegLength);
+  KINEVIS_DEMAND(q > kMinLegLength);
   const Eigen::Vector3d& u = data.u_B[leg];
   const Eigen::Matrix3d projector = (Eigen::Matrix3d::Identity() - u * u.transpose()) / q;
   Matrix36d L;
   L.leftCols<3>() = projector;
-  L.rightCols<3>() = -projector * Skew(data.r_B_PB[leg]);
+  L.rightCols<3>() = -projector * common::Skew(data.r_B_PB[leg]);
   return L;
 }
 
@@ -284,7 +271,7 @@ ForwardKinematicsSummary ForwardKinematics(const HexapodModel& model, const Vect
                                            const Eigen::Isometry3d& X_BP_guess,
                                            const ForwardKinematicsOptions& options,
                                            HexapodData* data) {
-  KINEVIS_HEXAPOD_DEMAND(data != nullptr);
+  KINEVIS_DEMAND(data != nullptr);
   ForwardKinematicsSummary summary;
   summary.X_BP = X_BP_guess;
   summary.residual = std::numeric_limits<double>::quiet_NaN();

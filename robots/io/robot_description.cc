@@ -7,11 +7,10 @@
 #include <stdexcept>
 #include <vector>
 
+#include "common/units.h"
+
 namespace kinevis::robots {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDeg = kPi / 180.0;
 
 std::string Text(double v) {
   std::ostringstream s;
@@ -99,7 +98,7 @@ class Reader {
     return Quantity(map, key, "_mm", 1e-3, where);
   }
   double Angle(const YAML::Node& map, const std::string& key, const std::string& where) {
-    return Quantity(map, key, "_deg", kDeg, where);
+    return Quantity(map, key, "_deg", common::kDeg, where);
   }
 
   // A sequence of exactly `n` numbers.
@@ -173,7 +172,7 @@ std::array<Eigen::Vector3d, kHexapodLegs> ReadSixPoints(Reader& r, const std::st
     const auto angles = r.Numbers(polar["angles_deg"], kHexapodLegs, key + "_polar.angles_deg");
     if (!(radius > 0)) r.Problem(key + "_polar.radius: must be > 0, got " + Text(radius));
     for (int j = 0; j < kHexapodLegs; ++j) {
-      const double a = angles[j] * kDeg;
+      const double a = angles[j] * common::kDeg;
       points[j] = Eigen::Vector3d(radius * std::cos(a), radius * std::sin(a), z);
     }
     return points;
@@ -194,9 +193,9 @@ Eigen::Isometry3d ReadPose(Reader& r, const YAML::Node& node, const std::string&
   std::vector<double> rpy{0.0, 0.0, 0.0};
   if (node["rpy_deg"]) rpy = r.Numbers(node["rpy_deg"], 3, name + ".rpy_deg");
   X.translation() = Eigen::Vector3d(p[0], p[1], p[2]);
-  X.linear() = (Eigen::AngleAxisd(rpy[2] * kDeg, Eigen::Vector3d::UnitZ()) *
-                Eigen::AngleAxisd(rpy[1] * kDeg, Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(rpy[0] * kDeg, Eigen::Vector3d::UnitX()))
+  X.linear() = (Eigen::AngleAxisd(rpy[2] * common::kDeg, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(rpy[1] * common::kDeg, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(rpy[0] * common::kDeg, Eigen::Vector3d::UnitX()))
                    .toRotationMatrix();
   return X;
 }
@@ -284,7 +283,7 @@ Weld5Description LoadWeld5Description(const std::string& path) {
     } else {
       d.model.q_min(i) = r.Angle(limits, "min", w);
       d.model.q_max(i) = r.Angle(limits, "max", w);
-      d.model.qd_max(i) = r.Quantity(limits, "speed", "_deg_s", kDeg, w);
+      d.model.qd_max(i) = r.Quantity(limits, "speed", "_deg_s", common::kDeg, w);
     }
     if (!(d.model.q_min(i) < d.model.q_max(i))) {
       r.Problem(w + "min < max does not hold (" + Text(d.model.q_min(i)) + " .. " +
@@ -326,7 +325,7 @@ DiamondDescription LoadDiamondDescription(const std::string& path) {
     }
     const auto v =
         r.Numbers(root[si ? key : key + "_deg"], kDiamondJoints, si ? key : key + "_deg");
-    for (int i = 0; i < kDiamondJoints; ++i) (*out)[i] = si ? v[i] : v[i] * kDeg;
+    for (int i = 0; i < kDiamondJoints; ++i) (*out)[i] = si ? v[i] : v[i] * common::kDeg;
   };
   pair("joint_offsets", &m.joint_offsets);
   pair("theta_min", &m.theta_min);

@@ -4,32 +4,34 @@
 #include <algorithm>
 #include <cmath>
 
+#include "common/units.h"
+
 namespace kinevis::robots {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDeg = kPi / 180.0;
 
 Weld5Model MakeModel(double alpha1, double a1, double theta1_offset, double theta2_offset,
                      const Eigen::Isometry3d& X_5T) {
   Weld5Model m;
   // seed 004 §4.1 and README numbers; links 3–5 from the structure of eq. (35)–(46).
   m.joints[0] = DhJoint{a1, alpha1, 0.275, theta1_offset, false};
-  m.joints[1] = DhJoint{0.033389, 90.0 * kDeg, 0.104718, theta2_offset, false};
-  m.joints[2] = DhJoint{0.0, -90.0 * kDeg, 0.0, 0.0, true};
-  m.joints[3] = DhJoint{0.0, 90.0 * kDeg, 0.0, 0.0, false};
+  m.joints[1] = DhJoint{0.033389, 90.0 * common::kDeg, 0.104718, theta2_offset, false};
+  m.joints[2] = DhJoint{0.0, -90.0 * common::kDeg, 0.0, 0.0, true};
+  m.joints[3] = DhJoint{0.0, 90.0 * common::kDeg, 0.0, 0.0, false};
   m.joints[4] = DhJoint{0.0, 0.0, 0.0, 0.0, false};
   // The same limits as the weld-robot simulator's defaults and robots/weld5/weld5.yaml.
-  m.q_min << -170.0 * kDeg, -120.0 * kDeg, 0.0, -180.0 * kDeg, -120.0 * kDeg;
-  m.q_max << 170.0 * kDeg, 120.0 * kDeg, 0.50, 180.0 * kDeg, 120.0 * kDeg;
-  m.qd_max << 90.0 * kDeg, 90.0 * kDeg, 0.05, 90.0 * kDeg, 90.0 * kDeg;
+  m.q_min << -170.0 * common::kDeg, -120.0 * common::kDeg, 0.0, -180.0 * common::kDeg,
+      -120.0 * common::kDeg;
+  m.q_max << 170.0 * common::kDeg, 120.0 * common::kDeg, 0.50, 180.0 * common::kDeg,
+      120.0 * common::kDeg;
+  m.qd_max << 90.0 * common::kDeg, 90.0 * common::kDeg, 0.05, 90.0 * common::kDeg,
+      90.0 * common::kDeg;
   m.X_5T = X_5T;
   return m;
 }
 
 double WrapToPi(double x) {
-  const double y = std::remainder(x, 2.0 * kPi);
-  return y <= -kPi ? y + 2.0 * kPi : y;
+  const double y = std::remainder(x, 2.0 * common::kPi);
+  return y <= -common::kPi ? y + 2.0 * common::kPi : y;
 }
 
 struct Residual {
@@ -108,11 +110,12 @@ Solve RunDls(const Weld5Model& model, const Eigen::Vector3d& p_t, const Eigen::V
 }  // namespace
 
 Weld5Model Weld5Model::Seed(const Eigen::Isometry3d& X_5T) {
-  return MakeModel(-89.827 * kDeg, -0.059e-3, 0.1097 * kDeg, 89.602 * kDeg, X_5T);
+  return MakeModel(-89.827 * common::kDeg, -0.059e-3, 0.1097 * common::kDeg, 89.602 * common::kDeg,
+                   X_5T);
 }
 
 Weld5Model Weld5Model::Ideal(const Eigen::Isometry3d& X_5T) {
-  return MakeModel(-90.0 * kDeg, 0.0, 0.0, 0.0, X_5T);
+  return MakeModel(-90.0 * common::kDeg, 0.0, 0.0, 0.0, X_5T);
 }
 
 Eigen::Isometry3d Weld5TorchTransform(double px5, double pz5, double beta) {
@@ -172,7 +175,7 @@ Weld5IkResult Weld5InverseKinematics(const Weld5Model& model, const Eigen::Vecto
   Solve free_first;
   for (int k = 0; k < starts; ++k) {
     Vector5d q0 = q_guess;
-    q0(0) = WrapToPi(q_guess(0) + (k % 4) * 0.5 * kPi);
+    q0(0) = WrapToPi(q_guess(0) + (k % 4) * 0.5 * common::kPi);
     if (k >= 4) {
       // Mirror the shoulder and wrist; a guess at (near) zero is moved off it first.
       q0(1) = std::abs(q_guess(1)) > 0.2 ? -q_guess(1) : q_guess(1) + 0.8;

@@ -15,6 +15,7 @@
 
 #include "calibration/weld_mount/mount_calibration_io.h"
 #include "calibration/weld_mount/mount_dataset.h"
+#include "common/units.h"
 #include "sim/weld_cell_world.h"
 #include "tests/utilities/subprocess.h"
 
@@ -46,7 +47,6 @@ double MountDistance(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
 double MountAngle(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
   return Eigen::AngleAxisd(a.linear().transpose() * b.linear()).angle();
 }
-constexpr double kDeg = M_PI / 180.0;
 
 // An exact arm (no D–H errors) with the gauge block placed off the board's centre and turned: the
 // layout guess (board centre, heading 0) is 10 mm / 3° off, the CAD mount 1.2 mm / 0.9°.
@@ -96,7 +96,7 @@ TEST(WeldMountCliTest, RecordsAndCalibratesTheMountOfTheSimulatedScanner) {
   const sim::WeldCellWorldConfig truth = sim::LoadWeldCellWorldConfig(config);
   // Measured: 0.037 mm, 0.058° from a CAD mount 1.15 mm / 0.86° off; bounds ~5-7x.
   EXPECT_LT(MountDistance(f.summary.X_5C, truth.X_5C), 0.25e-3) << calibrate.out;
-  EXPECT_LT(MountAngle(f.summary.X_5C, truth.X_5C), 0.35 * kDeg) << calibrate.out;
+  EXPECT_LT(MountAngle(f.summary.X_5C, truth.X_5C), 0.35 * common::kDeg) << calibrate.out;
   EXPECT_GT(MountDistance(f.metadata.X_5C_guess, truth.X_5C), 1e-3);  // it had to move
   // What `kinevis scan` reads.
   EXPECT_LT(MountDistance(calibration::ReadScannerMount(out), f.summary.X_5C), 1e-12);
@@ -157,9 +157,9 @@ TEST(WeldMountCliTest, DhErrorsOfTheArmAreEstimatedWithDh) {
   // Measured (7 views, docs/scanner-mount-calibration.md): with --dh 0.059 mm / 0.037°, the
   // mount alone 0.99 mm / 0.28°; bounds ~5x.
   EXPECT_LT(e_dh, 0.3e-3) << dh.out;
-  EXPECT_LT(MountAngle(with.summary.X_5C, truth.X_5C), 0.2 * kDeg) << dh.out;
+  EXPECT_LT(MountAngle(with.summary.X_5C, truth.X_5C), 0.2 * common::kDeg) << dh.out;
   EXPECT_LT(e, 5e-3) << mount_only.out;
-  EXPECT_LT(MountAngle(without.summary.X_5C, truth.X_5C), 1.5 * kDeg) << mount_only.out;
+  EXPECT_LT(MountAngle(without.summary.X_5C, truth.X_5C), 1.5 * common::kDeg) << mount_only.out;
   EXPECT_LT(e_dh, e) << dh.out << mount_only.out;
   // The mount-only fit shows the misfit in its touch residuals.
   EXPECT_GT(without.summary.touch.rms, 3.0 * with.summary.touch.rms);

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/mock/weld_robot_sim.h"
 #include "hal/modbus/modbus_client.h"
 #include "hal/weld/weld_robot_registers.h"
@@ -67,7 +67,7 @@ class WeldRobotMbpollTest : public ::testing::Test {
     return RunProcess(argv, std::chrono::seconds(30));
   }
 
-  SimulatedClock clock_;
+  common::SimulatedClock clock_;
   std::unique_ptr<WeldRobotSim> sim_;
 };
 

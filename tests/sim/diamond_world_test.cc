@@ -55,9 +55,9 @@ class Host {
 
   void MoveTo(const Eigen::Vector2d& q_target, double duration_s, double settle_s) {
     const Eigen::Vector2d q_start = Positions();
-    const hal::Duration start = world_->clock().Now();
+    const common::Duration start = world_->clock().Now();
     bus_->RunCyclesUntil(
-        start + std::chrono::duration_cast<hal::Duration>(
+        start + std::chrono::duration_cast<common::Duration>(
                     std::chrono::duration<double>(duration_s + settle_s)),
         [&] {
           const double t =
@@ -126,8 +126,8 @@ TEST(DiamondWorldTest, JointsCommandedFromTheTrueInverseKinematicsPutTheMarkerOn
   const Eigen::Vector3d p_target =
       robots::DiamondToolPoint(world.true_model().radius, task[0], task[1]);
   EXPECT_LT((s.p_O_T - p_target).norm(), 3e-5);
-  EXPECT_EQ(host.drives_[0]->lifecycle(), hal::DeviceLifecycle::kActive);
-  EXPECT_EQ(host.drives_[1]->lifecycle(), hal::DeviceLifecycle::kActive);
+  EXPECT_EQ(host.drives_[0]->lifecycle(), common::DeviceLifecycle::kActive);
+  EXPECT_EQ(host.drives_[1]->lifecycle(), common::DeviceLifecycle::kActive);
 
   // The a-priori model the host would use puts the same joints somewhere else by centimetres:
   // what seed 001's calibration removes.

@@ -73,11 +73,11 @@ class Host {
   // the target for `settle`.
   void MoveTo(const Vector6d& s_target, double duration_s, double settle_s) {
     const Vector6d s_start = Positions();
-    const hal::Duration start = world_->clock().Now();
+    const common::Duration start = world_->clock().Now();
     const auto elapsed = [&] {
       return std::chrono::duration<double>(world_->clock().Now() - start).count();
     };
-    master_->RunCyclesUntil(start + std::chrono::duration_cast<hal::Duration>(
+    master_->RunCyclesUntil(start + std::chrono::duration_cast<common::Duration>(
                                         std::chrono::duration<double>(duration_s + settle_s)),
                             [&] {
                               const double t = std::min(1.0, elapsed() / duration_s);
@@ -185,7 +185,7 @@ TEST(HexapodWorldTest, LegsCommandedFromTheTrueInverseKinematicsBringThePlatform
   EXPECT_LT(RotationError(s.X_BP, X_BP_target), 3e-5);
   for (int j = 0; j < kHexapodLegs; ++j) {
     EXPECT_NEAR(host.Positions()[j], s_target[j], 1.5e-6) << "leg " << j;
-    EXPECT_EQ(host.drives_[j]->lifecycle(), hal::DeviceLifecycle::kActive);
+    EXPECT_EQ(host.drives_[j]->lifecycle(), common::DeviceLifecycle::kActive);
   }
 }
 

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "common/units.h"
 #include "hal/camera/sim_camera.h"
 
 namespace kinevis::sim {
@@ -20,13 +21,11 @@ namespace {
 using ::testing::HasSubstr;
 using vision::ProjectionStatus;
 
-constexpr double kDeg = M_PI / 180.0;
-
 SoccerWorldConfig RobotNearTheCentreLine() {
   SoccerWorldConfig c;
   c.field.robot_x = -1.2;  // halfway line 1.2 m ahead, centre circle to the front left
   c.field.robot_y = 0.4;
-  c.field.robot_heading = 20 * kDeg;
+  c.field.robot_heading = 20 * common::kDeg;
   c.render.supersampling = 2;
   return c;
 }
@@ -36,8 +35,7 @@ TEST(SoccerRobotWorld, GroundTruthOfEveryPixelThatSeesALineLiesOnThatLine) {
   const int width = world.true_camera().width(), height = world.true_camera().height();
   std::vector<uint8_t> image(static_cast<size_t>(width) * height);
   vision::render::GroundTruth truth;
-  world.Render(0,
-               vision::render::ImageView8{image.data(), width, height, static_cast<size_t>(width)},
+  world.Render(0, vision::ImageView8{image.data(), width, height, static_cast<size_t>(width)},
                &truth);
   const double half_width = 0.5 * world.config().field.line_width;
   int line_pixels = 0, carpet_pixels = 0;
@@ -94,7 +92,7 @@ TEST(SoccerRobotWorld, GroundTruthMapIsThePerPixelTruthInTheFieldFrame) {
     EXPECT_NEAR(map.y_F[k], t.p_F.y(), 1e-8);
     EXPECT_NEAR(map.distance[k], t.distance, 1e-8);
     // F from G: the robot's pose on the field.
-    const double c = std::cos(20 * kDeg), s = std::sin(20 * kDeg);
+    const double c = std::cos(20 * common::kDeg), s = std::sin(20 * common::kDeg);
     EXPECT_NEAR(t.p_F.x(), -1.2 + c * t.p_G.x() - s * t.p_G.y(), 1e-12);
     EXPECT_NEAR(t.p_F.y(), 0.4 + s * t.p_G.x() + c * t.p_G.y(), 1e-12);
     ++checked;
@@ -122,7 +120,7 @@ void NominalMapError(const SoccerRobotWorld& world, double range, double* rms, d
   int n = 0;
   *worst = *distance_error = 0.0;
   for (int k = 0; k < 72; ++k) {
-    const double a = k * 5 * kDeg;
+    const double a = k * 5 * common::kDeg;
     const Eigen::Vector2d p_G = range * Eigen::Vector2d(std::cos(a), std::sin(a));
     Eigen::Vector2d pixel, p_G_nominal;
     ASSERT_EQ(world.true_camera().ProjectGroundPoint(p_G, &pixel), ProjectionStatus::kOk) << k;
@@ -198,9 +196,9 @@ TEST(SoccerRobotWorld, ConfigFileAndBadValues) {
   }
   const SoccerWorldConfig c = LoadSoccerWorldConfig(path);
   EXPECT_NEAR(c.camera.sensor_offset_z, -0.4e-3, 1e-15);
-  EXPECT_NEAR(c.camera.sensor_gamma, 1 * kDeg, 1e-15);
-  EXPECT_NEAR(c.camera.sensor_theta, -0.7 * kDeg, 1e-15);
-  EXPECT_NEAR(c.camera.ground_theta, 0.4 * kDeg, 1e-15);
+  EXPECT_NEAR(c.camera.sensor_gamma, 1 * common::kDeg, 1e-15);
+  EXPECT_NEAR(c.camera.sensor_theta, -0.7 * common::kDeg, 1e-15);
+  EXPECT_NEAR(c.camera.ground_theta, 0.4 * common::kDeg, 1e-15);
   EXPECT_EQ(c.camera.focal_length, 4.56e-3);
   EXPECT_EQ(c.field.robot_x, 3.0);
   EXPECT_NEAR(c.field.robot_heading, M_PI / 2, 1e-15);

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "common/units.h"
 #include "hal/camera/sim_camera.h"
 #include "hal/weld/weld_robot_client.h"
 #include "vision/render/scenes/laser_scene.h"
@@ -22,8 +23,6 @@ namespace {
 using ::testing::HasSubstr;
 using vision::render::LaserId;
 using Joints = std::array<double, robots::kWeld5Joints>;
-
-constexpr double kDeg = M_PI / 180.0;
 
 // A rendered scan, kept for triangulation.
 struct Scan {
@@ -39,8 +38,7 @@ Scan RenderScan(WeldCellWorld* world) {
   s.height = world->scanner_camera().height();
   s.image.assign(static_cast<size_t>(s.width) * s.height, 0);
   s.record = world->RenderScan(
-      0,
-      vision::render::ImageView8{s.image.data(), s.width, s.height, static_cast<size_t>(s.width)},
+      0, vision::ImageView8{s.image.data(), s.width, s.height, static_cast<size_t>(s.width)},
       &s.truth);
   return s;
 }
@@ -128,11 +126,11 @@ TEST(WeldCellWorld, TrueRobotDiffersFromTheNominalByRealisticSeededDhErrors) {
     max_angle = std::max(
         {max_angle, std::abs(t.alpha - n.alpha), std::abs(t.theta_offset - n.theta_offset)});
   }
-  std::printf("largest D-H error: %.3f mm, %.4f deg\n", max_length * 1e3, max_angle / kDeg);
+  std::printf("largest D-H error: %.3f mm, %.4f deg\n", max_length * 1e3, max_angle / common::kDeg);
   EXPECT_GT(max_length, 0.05e-3);
   EXPECT_LT(max_length, 1.0e-3);  // 5 σ
-  EXPECT_GT(max_angle, 0.01 * kDeg);
-  EXPECT_LT(max_angle, 0.25 * kDeg);
+  EXPECT_GT(max_angle, 0.01 * common::kDeg);
+  EXPECT_LT(max_angle, 0.25 * common::kDeg);
 
   c.seed = 2;
   EXPECT_NE(TrueWeld5Model(c).joints[0].a, a.joints[0].a);
@@ -195,7 +193,7 @@ TEST(WeldCellWorld, ConfigFileSetsTheTruthScannerWorkpieceAndController) {
   EXPECT_NEAR(c.workpiece.pits[0].sigma, 2.5e-3, 1e-12);
   EXPECT_EQ(c.unit, 3);
   EXPECT_EQ(c.buffer_capacity, 8);
-  EXPECT_NEAR(c.initial_joints[0], 5 * kDeg, 1e-12);
+  EXPECT_NEAR(c.initial_joints[0], 5 * common::kDeg, 1e-12);
   EXPECT_NEAR(c.initial_joints[2], 0.150, 1e-12);
   EXPECT_NEAR(c.step_period_s, 0.002, 1e-12);
 
@@ -260,7 +258,7 @@ TEST(WeldCellWorld, AMoveOverModbusTcpMovesTheScannerAndTheStripeTriangulatesOnt
   EXPECT_EQ(start, world.config().initial_joints);
 
   // θ1 +3°, pz3 +25 mm (towards the blade), θ4 −2°, θ5 +4°: a scan pose.
-  const Joints target{3 * kDeg, 0.0, 0.225, -2 * kDeg, 4 * kDeg};
+  const Joints target{3 * common::kDeg, 0.0, 0.225, -2 * common::kDeg, 4 * common::kDeg};
   MoveTo(&world, target, 0.8);
   const Joints now = world.joints();
   for (int j = 0; j < robots::kWeld5Joints; ++j) EXPECT_NEAR(now[j], target[j], 1e-6) << j;

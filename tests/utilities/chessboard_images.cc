@@ -10,10 +10,10 @@
 #include <stdexcept>
 #include <string>
 
+#include "common/units.h"
+
 namespace kinevis::testing {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 cv::Mat CameraMatrix(const vision::PinholeBrownParameters& c) {
   return (cv::Mat_<double>(3, 3) << c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1);
@@ -270,7 +270,7 @@ std::vector<Eigen::Isometry3d> CalibrationPoses(const vision::PinholeBrownParame
       const cv::Point2d a = q[k + 1] - q[k], b = q[k + 2] - q[k];
       if (cv::norm(a) < 12 || cv::norm(b) < 12) return false;
       const double cosine = a.dot(b) / (cv::norm(a) * cv::norm(b));
-      if (std::abs(cosine) > std::cos(55.0 * kPi / 180.0)) return false;
+      if (std::abs(cosine) > std::cos(55.0 * common::kPi / 180.0)) return false;
     }
     return true;
   };
@@ -288,9 +288,9 @@ std::vector<Eigen::Isometry3d> CalibrationPoses(const vision::PinholeBrownParame
       }
       const double fraction = 0.3 + 0.3 * unit(rng);  // of the image width the board spans
       const double Z = camera.fx * board_width / (fraction * camera.width);
-      const double tilt = (10.0 + 35.0 * unit(rng)) * kPi / 180.0;
-      const double axis_angle = 2 * kPi * unit(rng);
-      const double roll = (-20.0 + 40.0 * unit(rng)) * kPi / 180.0;
+      const double tilt = (10.0 + 35.0 * unit(rng)) * common::kPi / 180.0;
+      const double axis_angle = 2 * common::kPi * unit(rng);
+      const double roll = (-20.0 + 40.0 * unit(rng)) * common::kPi / 180.0;
       const Eigen::Matrix3d R_CT =
           (Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()) *
            Eigen::AngleAxisd(tilt, Eigen::Vector3d(std::cos(axis_angle), std::sin(axis_angle), 0)))

@@ -8,6 +8,7 @@
 #include <map>
 #include <stdexcept>
 
+#include "common/units.h"
 #include "vision/camera/camera_info_yaml.h"
 #include "vision/camera/hyperbolic_mirror_camera.h"
 #include "vision/camera/pinhole_camera.h"
@@ -225,12 +226,11 @@ std::unique_ptr<CameraModel> ReadHyperbolicMirror(Fields& f) {
   p.apex_to_ground = f.Number("apex_to_ground", "_mm", 1e-3);
   p.sensor_offset_x = f.Number("sensor_offset_x", "_mm", 1e-3, &zero);
   p.sensor_offset_z = f.Number("sensor_offset_z", "_mm", 1e-3, &zero);
-  constexpr double kDeg = 3.14159265358979323846 / 180.0;
-  p.sensor_gamma = f.Number("sensor_gamma", "_deg", kDeg, &zero);
-  p.sensor_rho = f.Number("sensor_rho", "_deg", kDeg, &zero);
-  p.sensor_theta = f.Number("sensor_theta", "_deg", kDeg, &zero);
-  p.ground_rho = f.Number("ground_rho", "_deg", kDeg, &zero);
-  p.ground_theta = f.Number("ground_theta", "_deg", kDeg, &zero);
+  p.sensor_gamma = f.Number("sensor_gamma", "_deg", common::kDeg, &zero);
+  p.sensor_rho = f.Number("sensor_rho", "_deg", common::kDeg, &zero);
+  p.sensor_theta = f.Number("sensor_theta", "_deg", common::kDeg, &zero);
+  p.ground_rho = f.Number("ground_rho", "_deg", common::kDeg, &zero);
+  p.ground_theta = f.Number("ground_theta", "_deg", common::kDeg, &zero);
   f.RejectUnknownKeys();
   f.ThrowIfAny();
   return Make<HyperbolicMirrorCamera>(f, p);

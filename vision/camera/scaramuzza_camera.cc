@@ -6,6 +6,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/units.h"
+
 namespace kinevis::vision {
 namespace {
 
@@ -13,7 +15,6 @@ constexpr int kMaxFitDegree = 30;
 constexpr int kFitSweepIntervals = 8192;
 constexpr int kMonotonicSweepIntervals = 4096;
 constexpr int kMaxRootIterations = 100;
-constexpr double kPi = 3.14159265358979323846;
 
 double Polynomial(const std::array<double, 5>& a, double rho, double* df) {
   double f = a[4];
@@ -213,7 +214,7 @@ void ScaramuzzaCamera::FitInverse() {
     std::vector<double> g(n + 1), t(n + 1);
     bool ok = true;
     for (int k = 0; k <= n && ok; ++k) {
-      t[k] = std::cos(kPi * (k + 0.5) / (n + 1));
+      t[k] = std::cos(common::kPi * (k + 0.5) / (n + 1));
       const double phi = 0.5 * (t[k] + 1.0) * phi_max_;
       double rho = 0.0;
       ok = ExactRadius(phi, &rho) == ProjectionStatus::kOk;
@@ -223,7 +224,7 @@ void ScaramuzzaCamera::FitInverse() {
     chebyshev_.assign(n + 1, 0.0);
     for (int j = 0; j <= n; ++j) {
       double sum = 0.0;
-      for (int k = 0; k <= n; ++k) sum += g[k] * std::cos(j * kPi * (k + 0.5) / (n + 1));
+      for (int k = 0; k <= n; ++k) sum += g[k] * std::cos(j * common::kPi * (k + 0.5) / (n + 1));
       chebyshev_[j] = (j == 0 ? 1.0 : 2.0) * sum / (n + 1);
     }
     chebyshev_derivative_.assign(std::max(n, 1), 0.0);

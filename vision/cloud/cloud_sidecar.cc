@@ -8,6 +8,7 @@
 #include <fstream>
 #include <stdexcept>
 
+#include "common/units.h"
 #include "vision/cloud/ply.h"
 
 namespace kinevis::vision::cloud {
@@ -15,8 +16,6 @@ namespace {
 
 constexpr const char* kKind = "kinevis-point-cloud";
 constexpr int kVersion = 1;
-constexpr double kMm = 1e3;
-constexpr double kDeg = 180.0 / M_PI;
 
 std::string NowUtc() {
   const std::time_t now = std::time(nullptr);
@@ -36,9 +35,9 @@ void EmitPose(YAML::Emitter& out, const Eigen::Isometry3d& X) {
   const Eigen::Vector3d ypr = X.linear().eulerAngles(2, 1, 0);
   out << YAML::BeginMap;
   out << YAML::Key << "position_mm" << YAML::Value;
-  EmitVector(out, X.translation() * kMm);
+  EmitVector(out, X.translation() * common::kMmPerM);
   out << YAML::Key << "rpy_deg" << YAML::Value;
-  EmitVector(out, Eigen::Vector3d(ypr.z(), ypr.y(), ypr.x()) * kDeg);
+  EmitVector(out, Eigen::Vector3d(ypr.z(), ypr.y(), ypr.x()) * common::kDegPerRad);
   out << YAML::EndMap;
 }
 
@@ -87,8 +86,8 @@ class Reader {
                          const std::string& name) const {
     const YAML::Node child = Child(node, key, name);
     const std::string full = key + "." + name;
-    const Eigen::Vector3d p = Vector(child, full, "position_mm") / kMm;
-    const Eigen::Vector3d rpy = Vector(child, full, "rpy_deg") / kDeg;
+    const Eigen::Vector3d p = Vector(child, full, "position_mm") / common::kMmPerM;
+    const Eigen::Vector3d rpy = Vector(child, full, "rpy_deg") / common::kDegPerRad;
     Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
     X.linear() = (Eigen::AngleAxisd(rpy.z(), Eigen::Vector3d::UnitZ()) *
                   Eigen::AngleAxisd(rpy.y(), Eigen::Vector3d::UnitY()) *
@@ -137,10 +136,10 @@ void WriteCloudSidecar(const std::string& path, const CloudSidecar& s) {
   out << YAML::Key << "dh" << YAML::Value << YAML::BeginSeq;
   for (const SidecarDhLink& l : s.robot_dh) {
     out << YAML::Flow << YAML::BeginMap;
-    out << YAML::Key << "a_mm" << YAML::Value << l.a * kMm;
-    out << YAML::Key << "alpha_deg" << YAML::Value << l.alpha * kDeg;
-    out << YAML::Key << "d_mm" << YAML::Value << l.d * kMm;
-    out << YAML::Key << "theta_offset_deg" << YAML::Value << l.theta_offset * kDeg;
+    out << YAML::Key << "a_mm" << YAML::Value << l.a * common::kMmPerM;
+    out << YAML::Key << "alpha_deg" << YAML::Value << l.alpha * common::kDegPerRad;
+    out << YAML::Key << "d_mm" << YAML::Value << l.d * common::kMmPerM;
+    out << YAML::Key << "theta_offset_deg" << YAML::Value << l.theta_offset * common::kDegPerRad;
     out << YAML::Key << "prismatic" << YAML::Value << l.prismatic;
     out << YAML::EndMap;
   }
@@ -210,10 +209,10 @@ CloudSidecar ReadCloudSidecar(const std::string& path) {
   for (std::size_t i = 0; i < dh.size(); ++i) {
     const std::string key = "robot.dh[" + std::to_string(i) + "]";
     SidecarDhLink l;
-    l.a = r.Number(dh[i], key, "a_mm") / kMm;
-    l.alpha = r.Number(dh[i], key, "alpha_deg") / kDeg;
-    l.d = r.Number(dh[i], key, "d_mm") / kMm;
-    l.theta_offset = r.Number(dh[i], key, "theta_offset_deg") / kDeg;
+    l.a = r.Number(dh[i], key, "a_mm") / common::kMmPerM;
+    l.alpha = r.Number(dh[i], key, "alpha_deg") / common::kDegPerRad;
+    l.d = r.Number(dh[i], key, "d_mm") / common::kMmPerM;
+    l.theta_offset = r.Number(dh[i], key, "theta_offset_deg") / common::kDegPerRad;
     l.prismatic = r.Get<bool>(dh[i], key, "prismatic");
     s.robot_dh.push_back(l);
   }

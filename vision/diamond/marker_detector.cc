@@ -1,5 +1,6 @@
 #include "vision/diamond/marker_detector.h"
 
+#include <Eigen/LU>
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -236,7 +237,7 @@ MarkerDetector::~MarkerDetector() = default;
 MarkerDetector::MarkerDetector(MarkerDetector&&) noexcept = default;
 MarkerDetector& MarkerDetector::operator=(MarkerDetector&&) noexcept = default;
 
-MarkerDetection MarkerDetector::Detect(const render::ImageView8& image,
+MarkerDetection MarkerDetector::Detect(const vision::ImageView8& image,
                                        const Eigen::Vector2d* prediction) {
   MarkerDetection result;
   if (image.data == nullptr || image.width <= 0 || image.height <= 0 ||

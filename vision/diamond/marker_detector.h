@@ -36,7 +36,7 @@
 #include <memory>
 #include <string>
 
-#include "vision/render/renderer.h"  // ImageView8
+#include "vision/image/image_view.h"
 
 namespace kinevis::vision {
 
@@ -96,7 +96,7 @@ class MarkerDetector {
 
   // Detects the marker in an 8-bit grey image (not modified). prediction (px, may be null): where
   // to search (±search_half_window_px); null searches the whole image. Never throws.
-  MarkerDetection Detect(const render::ImageView8& image,
+  MarkerDetection Detect(const vision::ImageView8& image,
                          const Eigen::Vector2d* prediction = nullptr);
 
  private:

@@ -4,14 +4,10 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/so3.h"
+
 namespace kinevis::vision {
 namespace {
-
-Eigen::Matrix3d Skew(const Eigen::Vector3d& a) {
-  Eigen::Matrix3d s;
-  s << 0, -a.z(), a.y(), a.z(), 0, -a.x(), -a.y(), a.x(), 0;
-  return s;
-}
 
 std::string CheckSetUp(const Eigen::Isometry3d& X_OC, double radius,
                        const SphericalPositioningOptions& options) {
@@ -103,7 +99,8 @@ SphereFix LocateOnSphere(const CameraModel& camera, const Eigen::Isometry3d& X_O
   fix.J_point_pixel = P * (R_OC * J_ray.d_origin_d_pixel + t * (R_OC * J_ray.d_direction_d_pixel));
   // Pose, right perturbation (ω, v) in C: do = R_OC(−[o_C]× ω + v), dd = −R_OC [d_C]× ω.
   Eigen::Matrix<double, 3, 6> J_point_pose;
-  J_point_pose.leftCols<3>() = P * (R_OC * (-Skew(ray.p_C_O)) + t * (R_OC * (-Skew(ray.d_C))));
+  J_point_pose.leftCols<3>() =
+      P * (R_OC * (-common::Skew(ray.p_C_O)) + t * (R_OC * (-common::Skew(ray.d_C))));
   J_point_pose.rightCols<3>() = P * R_OC;
 
   const double rho2 = p.x() * p.x() + p.y() * p.y();

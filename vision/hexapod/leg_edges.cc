@@ -14,8 +14,6 @@
 namespace kinevis::vision::hexapod {
 namespace {
 
-static_assert(kLegs == robots::kHexapodLegs, "six legs");
-
 constexpr double kMaxSearchHalfWidthPx = 256.0;
 // Longest profile: a row or column within 60° of the curve's normal, over ±half/cos.
 constexpr int kMaxProfile = 4 * static_cast<int>(kMaxSearchHalfWidthPx) + 4;
@@ -31,7 +29,7 @@ void AddBad(std::string* message, const char* name, double value, const char* re
   message->append(buffer);
 }
 
-void ThrowIfBad(const render::ImageView8& image, const CameraModel& camera,
+void ThrowIfBad(const vision::ImageView8& image, const CameraModel& camera,
                 const LegEdgeOptions& options) {
   std::string message = options.Validate();
   if (image.data == nullptr || image.width != camera.width() || image.height != camera.height() ||
@@ -485,19 +483,6 @@ std::string LegEdgeOptions::Validate() const {
   return m;
 }
 
-std::array<LegPrediction, kLegs> PredictLegs(const robots::HexapodModel& model,
-                                             const Eigen::Isometry3d& X_BP,
-                                             const Eigen::Isometry3d& X_CB) {
-  std::array<LegPrediction, kLegs> legs;
-  const Eigen::Isometry3d X_CP = X_CB * X_BP;
-  for (int j = 0; j < kLegs; ++j) {
-    legs[j].p_C_A = X_CB * model.p_B_A[j];
-    legs[j].p_C_B = X_CP * model.p_P_B[j];
-    legs[j].radius = model.leg_radius;
-  }
-  return legs;
-}
-
 bool MakeEdgePoint(const CameraModel& camera, const Eigen::Vector2d& pixel, EdgePoint* point) {
   Ray ray;
   RayJacobian J;
@@ -510,7 +495,7 @@ bool MakeEdgePoint(const CameraModel& camera, const Eigen::Vector2d& pixel, Edge
   return true;
 }
 
-LimbSearchStats FindLimbEdgePoints(const render::ImageView8& image, const CameraModel& camera,
+LimbSearchStats FindLimbEdgePoints(const vision::ImageView8& image, const CameraModel& camera,
                                    const LegPrediction& prediction, int limb,
                                    const OtherLeg* others, size_t other_count,
                                    const LegEdgeOptions& options, std::vector<EdgePoint>* points,
@@ -973,7 +958,7 @@ LegStatus JudgeSearch(const LimbSearchStats& s, const LegEdgeOptions& options, i
 }
 
 // One search + fit of one limb; on failure writes the reason into buffer.
-LegStatus SearchAndFit(const render::ImageView8& image, const CameraModel& camera,
+LegStatus SearchAndFit(const vision::ImageView8& image, const CameraModel& camera,
                        const LegPrediction& pred, int leg, int limb, const OtherLeg* others,
                        size_t other_count, const LegEdgeOptions& options,
                        const Eigen::Vector3d* refine, std::vector<EdgePoint>* points,
@@ -1033,7 +1018,7 @@ LegStatus FinishLeg(const LegPrediction& pred, const Eigen::Vector3d& n1p,
 }  // namespace
 
 const std::array<LegObservation, kLegs>& ObserveLegs(
-    const render::ImageView8& image, const CameraModel& camera,
+    const vision::ImageView8& image, const CameraModel& camera,
     const std::array<LegPrediction, kLegs>& predictions, const LegEdgeOptions& options,
     LegEdgeWorkspace* workspace) {
   if (workspace == nullptr) throw std::invalid_argument("leg edges: workspace is null");
@@ -1149,7 +1134,7 @@ const std::array<LegObservation, kLegs>& RefitObservedLegs(
   return workspace->observations;
 }
 
-std::array<LegObservation, kLegs> ObserveLegs(const render::ImageView8& image,
+std::array<LegObservation, kLegs> ObserveLegs(const vision::ImageView8& image,
                                               const CameraModel& camera,
                                               const std::array<LegPrediction, kLegs>& predictions,
                                               const LegEdgeOptions& options) {

@@ -37,9 +37,8 @@
 #include <string>
 #include <vector>
 
-#include "robots/hexapod/hexapod_model.h"
 #include "vision/camera/camera_model.h"
-#include "vision/render/renderer.h"
+#include "vision/image/image_view.h"
 
 namespace kinevis::vision::hexapod {
 
@@ -55,9 +54,21 @@ struct LegPrediction {
 
 // The six legs of `model` with the platform at X_BP (pose of P in B) seen from a camera at X_CB
 // (pose of B in C): A_j = X_CB p_B_A[j], B_j = X_CB X_BP p_P_B[j], R = model.leg_radius.
-std::array<LegPrediction, kLegs> PredictLegs(const robots::HexapodModel& model,
-                                             const Eigen::Isometry3d& X_BP,
-                                             const Eigen::Isometry3d& X_CB);
+// LegModel: any type with p_B_A and p_P_B (six points each, m, in B and in P) and leg_radius (m),
+// e.g. robots::HexapodModel; vision/ knows legs only as cylinders between two points.
+template <typename LegModel>
+std::array<LegPrediction, kLegs> PredictLegs(const LegModel& model, const Eigen::Isometry3d& X_BP,
+                                             const Eigen::Isometry3d& X_CB) {
+  static_assert(std::tuple_size_v<decltype(model.p_B_A)> == kLegs, "six legs");
+  std::array<LegPrediction, kLegs> legs;
+  const Eigen::Isometry3d X_CP = X_CB * X_BP;
+  for (int j = 0; j < kLegs; ++j) {
+    legs[j].p_C_A = X_CB * model.p_B_A[j];
+    legs[j].p_C_B = X_CP * model.p_P_B[j];
+    legs[j].radius = model.leg_radius;
+  }
+  return legs;
+}
 
 // Which way the grey level steps across a limb, seen from outside the leg.
 enum class EdgePolarity {
@@ -192,7 +203,7 @@ struct LimbSearchStats {
 // Throws std::invalid_argument for invalid options, an image that is null or not camera-sized,
 // a non-central camera, limb not in {0, 1}, or too many others. An unusable prediction
 // (non-finite, radius <= 0, viewpoint inside the cylinder) gives no points and stats.samples = 0.
-LimbSearchStats FindLimbEdgePoints(const render::ImageView8& image, const CameraModel& camera,
+LimbSearchStats FindLimbEdgePoints(const vision::ImageView8& image, const CameraModel& camera,
                                    const LegPrediction& prediction, int limb,
                                    const OtherLeg* others, size_t other_count,
                                    const LegEdgeOptions& options, std::vector<EdgePoint>* points,
@@ -264,7 +275,7 @@ struct LegEdgeWorkspace {
 // final fit; then the width check and eq. (11). Throws std::invalid_argument as
 // FindLimbEdgePoints(). The result lives in *workspace (also returned).
 const std::array<LegObservation, kLegs>& ObserveLegs(
-    const render::ImageView8& image, const CameraModel& camera,
+    const vision::ImageView8& image, const CameraModel& camera,
     const std::array<LegPrediction, kLegs>& predictions, const LegEdgeOptions& options,
     LegEdgeWorkspace* workspace);
 
@@ -280,7 +291,7 @@ const std::array<LegObservation, kLegs>& RefitObservedLegs(
     LegEdgeWorkspace* workspace);
 
 // Convenience form (allocates its own workspace).
-std::array<LegObservation, kLegs> ObserveLegs(const render::ImageView8& image,
+std::array<LegObservation, kLegs> ObserveLegs(const vision::ImageView8& image,
                                               const CameraModel& camera,
                                               const std::array<LegPrediction, kLegs>& predictions,
                                               const LegEdgeOptions& options = {});

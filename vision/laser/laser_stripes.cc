@@ -366,14 +366,14 @@ bool FitGaussian(const LineView& g, const Background& bg, int first, int last, i
 
 // The image line `index` of a search (a column for the column search) and the line across it
 // through pixel `x` of that line.
-LineView SearchLine(const render::ImageView8& image, bool column_search, int index) {
+LineView SearchLine(const vision::ImageView8& image, bool column_search, int index) {
   if (column_search)
     return LineView{image.data + index, static_cast<std::ptrdiff_t>(image.stride), image.height};
   return LineView{image.data + static_cast<std::ptrdiff_t>(index) * image.stride, 1, image.width};
 }
 
 // Analyses the ridge run [run_first, run_last] of search line `line` (of length g.length).
-PeakMeasurement Analyse(const render::ImageView8& image, bool column_search, int line,
+PeakMeasurement Analyse(const vision::ImageView8& image, bool column_search, int line,
                         const LineView& g, int run_first, int run_last,
                         const LaserStripeOptions& o) {
   PeakMeasurement m;
@@ -510,7 +510,7 @@ PeakMeasurement Analyse(const render::ImageView8& image, bool column_search, int
 
 }  // namespace
 
-void LaserStripeExtractor::SearchStripe(const render::ImageView8& image, Stripe stripe,
+void LaserStripeExtractor::SearchStripe(const vision::ImageView8& image, Stripe stripe,
                                         StripeResult* result) {
   const LaserStripeOptions& o = options_;
   const bool column_search = stripe == Stripe::kRotating;
@@ -980,7 +980,7 @@ void LaserStripeExtractor::FindCrossing(LaserStripes* result) const {
   crossing.status = CrossingStatus::kNoConvergence;
 }
 
-void LaserStripeExtractor::Extract(const render::ImageView8& image, LaserStripes* result) {
+void LaserStripeExtractor::Extract(const vision::ImageView8& image, LaserStripes* result) {
   if (image.data == nullptr)
     throw std::invalid_argument("LaserStripeExtractor: image data is null");
   if (image.stride < static_cast<size_t>(std::max(image.width, 0))) {

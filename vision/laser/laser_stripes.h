@@ -2,7 +2,7 @@
 
 // Sub-pixel laser stripe extraction for the weld cell's triangulation scanner (issue 7,
 // "Scanner" bullet 1; seed 004 §2–3: a camera and two laser line projectors, one fixed, one
-// rotating). Input: an 8-bit grey image (render::ImageView8) with the stripe of the rotating laser
+// rotating). Input: an 8-bit grey image (vision::ImageView8) with the stripe of the rotating laser
 // running roughly along the image rows (searched per COLUMN), the stripe of the fixed laser
 // roughly along the columns (searched per ROW), either or both switched on. Output: one sub-pixel
 // point per searched line and laser at most, with its width, contrast and a confidence, counts of
@@ -46,7 +46,7 @@
 #include <string>
 #include <vector>
 
-#include "vision/render/renderer.h"
+#include "vision/image/image_view.h"
 
 namespace kinevis::vision::laser {
 
@@ -241,12 +241,12 @@ class LaserStripeExtractor {
   // Extracts both stripes (those enabled) and their crossing from `image` into *result (cleared
   // first). Throws std::invalid_argument for a null image, a size outside [1, 16384]² or a stride
   // below the width. An image with no stripe gives no points (counts say why), not an error.
-  void Extract(const render::ImageView8& image, LaserStripes* result);
+  void Extract(const vision::ImageView8& image, LaserStripes* result);
 
  private:
   struct Candidate;
   struct LineState;
-  void SearchStripe(const render::ImageView8& image, Stripe stripe, StripeResult* result);
+  void SearchStripe(const vision::ImageView8& image, Stripe stripe, StripeResult* result);
   void FindCrossing(LaserStripes* result) const;
 
   LaserStripeOptions options_;

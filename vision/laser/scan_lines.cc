@@ -56,7 +56,7 @@ ScanLineTriangulator::ScanLineTriangulator(const ScannerModel& model,
   options_.stripes = BothStripes(options);
 }
 
-void ScanLineTriangulator::Process(const render::ImageView8& image, ScanLineResult* result,
+void ScanLineTriangulator::Process(const vision::ImageView8& image, ScanLineResult* result,
                                    double expected_cot_theta_y) {
   const CameraModel& camera = model_.camera();
   if (image.width != camera.width() || image.height != camera.height()) {

@@ -67,7 +67,7 @@ class ScanLineTriangulator {
   // Extracts the stripes of `image` (the scanner camera's size) and triangulates the rotating
   // one into *result. `expected_cot_theta_y` (NaN: none) checks eq. (11) against a commanded
   // angle. Throws std::invalid_argument for an image that is not the camera's size (names both).
-  void Process(const render::ImageView8& image, ScanLineResult* result,
+  void Process(const vision::ImageView8& image, ScanLineResult* result,
                double expected_cot_theta_y = std::nan(""));
 
   const ScanLineOptions& options() const { return options_; }

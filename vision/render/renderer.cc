@@ -12,17 +12,10 @@
 #include <stdexcept>
 #include <type_traits>
 
+#include "common/check.h"
+
 namespace kinevis::vision::render {
 namespace {
-
-// Tier-1 check: a broken invariant (caller bug) aborts with file and line.
-#define KINEVIS_RENDER_DEMAND(cond)                                                           \
-  do {                                                                                        \
-    if (!(cond)) {                                                                            \
-      std::fprintf(stderr, "%s:%d: renderer: check failed: %s\n", __FILE__, __LINE__, #cond); \
-      std::abort();                                                                           \
-    }                                                                                         \
-  } while (0)
 
 constexpr int kMaxSupersampling = 16;
 constexpr double kMaxBlurSigmaPx = 20.0;
@@ -176,7 +169,7 @@ void Scene::TraceCameraFixed(const RayBatch& rays, CameraFixedHit* out) const {
 
 void Scene::ShadeSurface(const Eigen::Vector2d*, int, Hit*) const {
   // Tier 1: only a scene that answered kSurface is asked, and such a scene must override this.
-  KINEVIS_RENDER_DEMAND(!"Scene::ShadeSurface called on a scene without a camera-fixed surface");
+  KINEVIS_DEMAND(!"Scene::ShadeSurface called on a scene without a camera-fixed surface");
 }
 
 void Scene::TraceBatch(const RayBatch& rays, Hit* hits) const {
@@ -503,7 +496,7 @@ void Renderer::PrepareCameraFixed(const Scene& scene) {
     for (int k = 0; k < count; ++k) {
       const size_t i = static_cast<size_t>(first) + k;
       const CameraFixedHit& f = fixed[k];
-      KINEVIS_RENDER_DEMAND(f.kind <= CameraFixedHit::kSurface);
+      KINEVIS_DEMAND(f.kind <= CameraFixedHit::kSurface);
       centre_kind_[i] = f.kind;
       switch (f.kind) {
         case CameraFixedHit::kConstant:
@@ -561,7 +554,7 @@ void Renderer::PrepareCameraFixed(const Scene& scene) {
           batch.count = count;
           scene.TraceCameraFixed(batch, fixed.data());
           for (int r = 0; r < count; ++r) {
-            KINEVIS_RENDER_DEMAND(fixed[r].kind <= CameraFixedHit::kSurface);
+            KINEVIS_DEMAND(fixed[r].kind <= CameraFixedHit::kSurface);
             answers[asked[r]] = fixed[r];
           }
         }
@@ -636,9 +629,9 @@ void Renderer::PrepareCameraFixed(const Scene& scene) {
 void Renderer::Render(const Scene& scene, uint64_t frame_index, const ImageView8& out,
                       GroundTruth* truth) {
   const int w = camera_.width(), h = camera_.height();
-  KINEVIS_RENDER_DEMAND(out.data != nullptr);
-  KINEVIS_RENDER_DEMAND(out.width == w && out.height == h);
-  KINEVIS_RENDER_DEMAND(out.stride >= static_cast<size_t>(w));
+  KINEVIS_DEMAND(out.data != nullptr);
+  KINEVIS_DEMAND(out.width == w && out.height == h);
+  KINEVIS_DEMAND(out.stride >= static_cast<size_t>(w));
   const size_t n = static_cast<size_t>(w) * h;
   if (radiance_.size() != n) {  // first frame at this size: the only allocations
     radiance_.resize(n);

@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "vision/camera/camera_model.h"
+#include "vision/image/image_view.h"
 
 namespace kinevis::vision::render {
 
@@ -104,15 +105,6 @@ class Scene {
   // biquadratic interpolations of nine of them (Renderer, sub-samples). The default aborts: a
   // scene that answers kSurface overrides it.
   virtual void ShadeSurface(const Eigen::Vector2d* points, int count, Hit* hits) const;
-};
-
-// A non-owning 8-bit grey image view (row-major, `stride` bytes per row); hal::Image and cv::Mat
-// both provide one without copying.
-struct ImageView8 {
-  uint8_t* data = nullptr;
-  int width = 0;
-  int height = 0;
-  size_t stride = 0;
 };
 
 struct RenderOptions {

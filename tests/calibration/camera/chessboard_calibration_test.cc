@@ -12,6 +12,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "common/units.h"
 #include "tests/utilities/chessboard_images.h"
 
 namespace kinevis::calibration {
@@ -22,7 +23,6 @@ using ::testing::ContainsRegex;
 using testing::GreyImage;
 using ::testing::HasSubstr;
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr unsigned kPoseSeed = 7;
 
 vision::PinholeBrownParameters TrueCamera() {
@@ -91,7 +91,7 @@ TEST(ChessboardCalibrationTest, RecoversIntrinsicsFromNoiselessImages) {
       e.fx - t.fx, e.fy - t.fy, e.cx - t.cx, e.cy - t.cy, e.distortion[0] - t.distortion[0],
       e.distortion[1] - t.distortion[1], e.distortion[2] - t.distortion[2],
       e.distortion[3] - t.distortion[3], r.rms_px, r.stddev.fx, r.stddev.cx, r.coverage,
-      r.max_tilt_rad * 180 / kPi);
+      r.max_tilt_rad * 180 / common::kPi);
   EXPECT_EQ(e.width, 640);
   EXPECT_EQ(e.height, 480);
   EXPECT_NEAR(e.fx, t.fx, 1.2);
@@ -168,7 +168,7 @@ TEST(ChessboardCalibrationTest, RecoversBoardPoses) {
   // Rotating T by 180° about its z axis through the board centre relabels the corners in
   // reverse order.
   Eigen::Isometry3d flip = Eigen::Isometry3d::Identity();
-  flip.linear() = Eigen::AngleAxisd(kPi, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  flip.linear() = Eigen::AngleAxisd(common::kPi, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   flip.translation() = Eigen::Vector3d(8 * 0.025, 5 * 0.025, 0);
   double worst_mm = 0;
   for (size_t k = 0; k < poses.size(); ++k) {
@@ -275,7 +275,7 @@ TEST(ChessboardCalibrationTest, FrontoParallelBoardsInTheCentreAreWarnedAbout) {
   }
   const ChessboardCalibrationResult r = CalibrateChessboard(images, Options());
   ASSERT_TRUE(r.calibrated) << r.message;
-  EXPECT_LT(r.max_tilt_rad, 15 * kPi / 180);
+  EXPECT_LT(r.max_tilt_rad, 15 * common::kPi / 180);
   EXPECT_LT(r.coverage, 0.5);
   EXPECT_THAT(r.warnings, ::testing::Contains(HasSubstr("nearly fronto-parallel")));
   EXPECT_THAT(r.warnings, ::testing::Contains(HasSubstr("cover only")));

@@ -7,6 +7,7 @@
 #include <memory>
 
 #include "calibration/diamond/diamond_residuals_internal.h"
+#include "common/units.h"
 #include "vision/camera/pinhole_camera.h"
 #include "vision/render/scenes/diamond_marker_scene.h"
 
@@ -15,8 +16,6 @@ namespace {
 
 using ::testing::HasSubstr;
 using ::testing::MatchesRegex;
-
-constexpr double kDeg = M_PI / 180.0;
 
 std::unique_ptr<vision::CameraModel> SeedCamera() {
   vision::PinholeBrownParameters p;
@@ -33,7 +32,7 @@ std::unique_ptr<vision::CameraModel> SeedCamera() {
 // encoder offsets of 0.6° and −0.4°.
 robots::DiamondModel Truth() {
   robots::DiamondModel m = robots::DiamondModel::SeedIdentified();
-  m.joint_offsets = {0.6 * kDeg, -0.4 * kDeg};
+  m.joint_offsets = {0.6 * common::kDeg, -0.4 * common::kDeg};
   return m;
 }
 
@@ -41,10 +40,10 @@ robots::DiamondModel Truth() {
 // is known to ~1°, ~1 cm; its distance, the scale gauge, is known).
 Eigen::Isometry3d TrueCameraPose() {
   Eigen::Isometry3d X_OC = vision::render::DiamondCameraPose(0.4462).inverse();
-  X_OC = Eigen::AngleAxisd(1.5 * kDeg, Eigen::Vector3d::UnitZ()) * X_OC;
-  X_OC.linear() =
-      X_OC.linear() *
-      Eigen::AngleAxisd(0.8 * kDeg, Eigen::Vector3d(1, -1, 0.5).normalized()).toRotationMatrix();
+  X_OC = Eigen::AngleAxisd(1.5 * common::kDeg, Eigen::Vector3d::UnitZ()) * X_OC;
+  X_OC.linear() = X_OC.linear() *
+                  Eigen::AngleAxisd(0.8 * common::kDeg, Eigen::Vector3d(1, -1, 0.5).normalized())
+                      .toRotationMatrix();
   return X_OC;
 }
 
@@ -203,7 +202,8 @@ TEST(DiamondIdentificationTest, DetectsDegenerateExcitation) {
   const auto camera = SeedCamera();
   const robots::DiamondModel nominal = robots::DiamondModel::APriori();
   std::vector<Eigen::Vector2d> tasks;
-  for (double phi = 60; phi <= 120; phi += 3) tasks.emplace_back(phi * kDeg, 45 * kDeg);
+  for (double phi = 60; phi <= 120; phi += 3)
+    tasks.emplace_back(phi * common::kDeg, 45 * common::kDeg);
   const std::vector<DiamondSample> samples =
       SimulateDiamondSamples(nominal, Truth(), *camera, TrueCameraPose(), tasks);
   ASSERT_GT(samples.size(), 15u);

@@ -9,13 +9,12 @@
 #include <cmath>
 
 #include "calibration/diamond/diamond_identification.h"
+#include "common/units.h"
 #include "vision/camera/pinhole_camera.h"
 #include "vision/render/scenes/diamond_marker_scene.h"
 
 namespace kinevis::calibration {
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
 
 TEST(DiamondIdentificationAccuracyTest, RecoversTheSeedsParametersWithinTwoTenthsOfAPercent) {
   vision::PinholeBrownParameters p;
@@ -26,13 +25,14 @@ TEST(DiamondIdentificationAccuracyTest, RecoversTheSeedsParametersWithinTwoTenth
   p.cy = 319.5;
   const vision::PinholeBrownCamera camera(p);
   robots::DiamondModel truth = robots::DiamondModel::SeedIdentified();
-  truth.joint_offsets = {0.6 * kDeg, -0.4 * kDeg};
+  truth.joint_offsets = {0.6 * common::kDeg, -0.4 * common::kDeg};
   const robots::DiamondModel apriori = robots::DiamondModel::APriori();
   const Eigen::Isometry3d X_nominal = vision::render::DiamondCameraPose(0.4462).inverse();
-  Eigen::Isometry3d X_true = Eigen::AngleAxisd(1.5 * kDeg, Eigen::Vector3d::UnitZ()) * X_nominal;
-  X_true.linear() =
-      X_true.linear() *
-      Eigen::AngleAxisd(0.75 * kDeg, Eigen::Vector3d(1, -1, 0.5).normalized()).toRotationMatrix();
+  Eigen::Isometry3d X_true =
+      Eigen::AngleAxisd(1.5 * common::kDeg, Eigen::Vector3d::UnitZ()) * X_nominal;
+  X_true.linear() = X_true.linear() *
+                    Eigen::AngleAxisd(0.75 * common::kDeg, Eigen::Vector3d(1, -1, 0.5).normalized())
+                        .toRotationMatrix();
   const auto tasks = DiamondVisibleTaskGrid(apriori, camera, X_true, 32, 26);
   for (double noise : {0.3, 0.5}) {
     for (uint64_t seed : {1, 2, 3}) {

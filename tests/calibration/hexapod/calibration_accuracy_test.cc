@@ -28,6 +28,7 @@
 
 #include "calibration/hexapod/leg_calibration.h"
 #include "calibration/hexapod/pose_planner.h"
+#include "common/units.h"
 #include "robots/hexapod/hexapod_model.h"
 #include "sim/hexapod_world.h"
 #include "vision/camera/pinhole_camera.h"
@@ -41,7 +42,6 @@ namespace {
 namespace edges = vision::hexapod;
 using robots::kHexapodLegs;
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr unsigned kSeed = 1;
 constexpr int kCameraId = 1;  // the experiment's id of the perspective camera (mixed into seeds)
 
@@ -161,7 +161,8 @@ Figures RunDraw(int draw, bool perturb) {
   Eigen::Isometry3d X_BC_true = X_CB_drawn.inverse();
   X_BC_true.translation() += 0.010 * RandomUnit(&mount);
   X_BC_true.linear() =
-      Eigen::AngleAxisd(kPi / 180.0, RandomUnit(&mount)).toRotationMatrix() * X_BC_true.linear();
+      Eigen::AngleAxisd(common::kPi / 180.0, RandomUnit(&mount)).toRotationMatrix() *
+      X_BC_true.linear();
   const Eigen::Isometry3d X_CB_true = X_BC_true.inverse();
 
   // The drives at the nominal IK of each planned pose; the true platform where the true robot's
@@ -183,8 +184,8 @@ Figures RunDraw(int draw, bool perturb) {
     if (!f.converged()) continue;
     std::vector<uint8_t> pixels(static_cast<size_t>(camera.width()) * camera.height(), 0);
     renderer.Render(vision::render::HexapodScene(truth, f.X_BP, X_CB_true), k,
-                    vision::render::ImageView8{pixels.data(), camera.width(), camera.height(),
-                                               static_cast<size_t>(camera.width())});
+                    vision::ImageView8{pixels.data(), camera.width(), camera.height(),
+                                       static_cast<size_t>(camera.width())});
     images.push_back(std::move(pixels));
     planned.push_back(plan.X_BP[k]);
     X_BP_true.push_back(f.X_BP);
@@ -206,8 +207,8 @@ Figures RunDraw(int draw, bool perturb) {
       if (p_C_A) {
         for (int j = 0; j < kHexapodLegs; ++j) predictions[j].p_C_A = (*p_C_A)[j];
       }
-      const vision::render::ImageView8 view{images[k].data(), camera.width(), camera.height(),
-                                            static_cast<size_t>(camera.width())};
+      const vision::ImageView8 view{images[k].data(), camera.width(), camera.height(),
+                                    static_cast<size_t>(camera.width())};
       edges::ObserveLegs(view, camera, predictions, edge_options, workspace.get());
       if (perturb) {
         std::mt19937_64 rng = Generator(draw, 1, pass, static_cast<int>(k));

@@ -169,7 +169,7 @@ TEST(HexapodCalibrationIoTest, ReprojectionImageMarksEstimatedAndCadPoints) {
   p.cy = 239.5;
   const vision::PinholeBrownCamera camera(p);
   std::vector<uint8_t> pixels(640 * 480, 40);
-  const vision::render::ImageView8 view{pixels.data(), 640, 480, 640};
+  const vision::ImageView8 view{pixels.data(), 640, 480, 640};
   HexapodCalibrationResult r = SomeResult();
   const std::string path = TempPath("reprojection.png");
   WriteReprojectionImage(path, view, camera, r, robots::HexapodModel::Default());
@@ -195,7 +195,7 @@ TEST(HexapodCalibrationIoTest, ReprojectionImageMarksEstimatedAndCadPoints) {
   }
   EXPECT_GE(checked, 5);
   // Wrong size is refused; an unwritable path names itself.
-  const vision::render::ImageView8 small{pixels.data(), 320, 240, 640};
+  const vision::ImageView8 small{pixels.data(), 320, 240, 640};
   EXPECT_THROW(WriteReprojectionImage(path, small, camera, r, robots::HexapodModel::Default()),
                std::invalid_argument);
   try {

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "calibration/hexapod/pose_planner.h"
+#include "common/units.h"
 #include "vision/camera/pinhole_camera.h"
 #include "vision/camera/unified_camera.h"
 #include "vision/render/scenes/hexapod_scene.h"
@@ -22,7 +23,6 @@ using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
 using ::testing::IsEmpty;
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr double kTarget = 0.004;  // the accuracy target on A_j (m)
 
 // The "true" robot: the CAD model with its base points moved by a few millimetres, so that the
@@ -59,7 +59,7 @@ Geometry Perspective() {
 // the legs, 0.15 m above the base, its axis vertical (looking down at the base joints).
 Geometry Omni() {
   Eigen::Isometry3d X_BC = Eigen::Isometry3d::Identity();
-  X_BC.linear() = Eigen::AngleAxisd(kPi, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  X_BC.linear() = Eigen::AngleAxisd(common::kPi, Eigen::Vector3d::UnitX()).toRotationMatrix();
   X_BC.translation() = Eigen::Vector3d(0.0, 0.0, 0.15);
   return {std::make_unique<vision::UnifiedCamera>(vision::UnifiedParameters::Default()),
           X_BC.inverse()};
@@ -154,8 +154,8 @@ HexapodCalibrationData MakeData(const robots::HexapodModel& truth, const Geometr
         } else {
           const Eigen::Vector3d axis = n.unitOrthogonal();
           const Eigen::Vector3d tilt_axis =
-              Eigen::AngleAxisd(2.0 * kPi * unit(rng), n).toRotationMatrix() * axis;
-          const double angle = (0.5 + 4.5 * unit(rng)) * kPi / 180.0;
+              Eigen::AngleAxisd(2.0 * common::kPi * unit(rng), n).toRotationMatrix() * axis;
+          const double angle = (0.5 + 4.5 * unit(rng)) * common::kPi / 180.0;
           n = Eigen::AngleAxisd(angle, tilt_axis).toRotationMatrix() * n;
         }
         if (outliers) outliers->push_back({static_cast<int>(k), j, limb});

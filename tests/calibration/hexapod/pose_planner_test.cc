@@ -8,6 +8,7 @@
 #include <random>
 #include <vector>
 
+#include "common/units.h"
 #include "vision/render/scenes/hexapod_scene.h"
 
 namespace kinevis::calibration {
@@ -15,8 +16,6 @@ namespace {
 
 using ::testing::HasSubstr;
 using ::testing::IsEmpty;
-
-constexpr double kPi = 3.14159265358979323846;
 
 const PosePlan& DefaultPlan() {
   static const PosePlan plan = [] {
@@ -111,9 +110,9 @@ TEST(PosePlannerTest, SpreadsEveryLegsDirectionMoreThanRandomPoses) {
   }
   for (int j = 0; j < robots::kHexapodLegs; ++j) {
     std::printf("leg %d: max angle %.1f deg, direction spread %.4f, cond(eq. 14) %.1f\n", j,
-                plan.legs[j].max_angle * 180 / kPi, plan.legs[j].direction_spread,
+                plan.legs[j].max_angle * 180 / common::kPi, plan.legs[j].direction_spread,
                 plan.legs[j].condition_number);
-    EXPECT_GT(plan.legs[j].max_angle, 20.0 * kPi / 180.0);
+    EXPECT_GT(plan.legs[j].max_angle, 20.0 * common::kPi / 180.0);
   }
 }
 

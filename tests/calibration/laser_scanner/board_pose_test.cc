@@ -41,7 +41,7 @@ Eigen::Isometry3d Pose(double depth, double tilt_x, double tilt_y, double spin) 
 
 struct Image {
   std::vector<uint8_t> pixels;
-  vision::render::ImageView8 view;
+  vision::ImageView8 view;
 };
 
 Image Render(const vision::CameraModel& camera, const LaserScene& scene, double noise,
@@ -141,8 +141,8 @@ TEST(BoardPose, GridPartlyOutOfViewIsNotFound) {
   EXPECT_EQ(pose.confidence, 0.0);
   // A blank image: nothing at all.
   std::vector<uint8_t> blank(image.pixels.size(), 128);
-  const vision::render::ImageView8 view{blank.data(), camera->width(), camera->height(),
-                                        static_cast<size_t>(camera->width())};
+  const vision::ImageView8 view{blank.data(), camera->width(), camera->height(),
+                                static_cast<size_t>(camera->width())};
   const BoardPose none = EstimateBoardPose(view, *camera, scene.parameters().dots);
   EXPECT_EQ(none.status, BoardPoseStatus::kGridNotFound);
   EXPECT_EQ(none.candidates, 0);
@@ -151,7 +151,7 @@ TEST(BoardPose, GridPartlyOutOfViewIsNotFound) {
 TEST(BoardPose, BadOptionsAndImagesAreRefusedByName) {
   const auto camera = vision::BuiltinCameraModel("tsai-seed004");
   std::vector<uint8_t> pixels(100 * 100, 0);
-  const vision::render::ImageView8 small{pixels.data(), 100, 100, 100};
+  const vision::ImageView8 small{pixels.data(), 100, 100, 100};
   BoardPoseOptions options;
   options.threshold_window_px = 4;
   options.max_grid_residual = 0.7;
@@ -161,9 +161,12 @@ TEST(BoardPose, BadOptionsAndImagesAreRefusedByName) {
     DetectDotGrid(small, *camera, grid, options);
     FAIL() << "accepted";
   } catch (const std::invalid_argument& e) {
-    EXPECT_THAT(e.what(), ::testing::ContainsRegex("threshold_window_px = 4"));
-    EXPECT_THAT(e.what(), ::testing::ContainsRegex("max_grid_residual = 0.7"));
-    EXPECT_THAT(e.what(), ::testing::ContainsRegex("grid.dot_radius = 0.02"));
+    EXPECT_THAT(e.what(), ::testing::ContainsRegex(
+                              "threshold_window_px: must be 0 \\(auto\\) or odd >= 3, got 4"));
+    EXPECT_THAT(e.what(), ::testing::ContainsRegex(
+                              "max_grid_residual: must be in \\(0, 0.5\\) cells, got 0.7"));
+    EXPECT_THAT(e.what(), ::testing::ContainsRegex(
+                              "grid.dot_radius: must be in \\(0, pitch / 2\\) m, got 0.02"));
     EXPECT_THAT(e.what(), ::testing::ContainsRegex("image 100x100 .*1616x1216"));
   }
 }

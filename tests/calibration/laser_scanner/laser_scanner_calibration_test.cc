@@ -11,6 +11,7 @@
 
 #include "calibration/laser_scanner/laser_scanner_calibration_internal.h"
 #include "calibration/laser_scanner/synthetic_stripes.h"
+#include "common/units.h"
 #include "vision/camera/camera_file.h"
 #include "vision/render/scenes/laser_scene.h"
 
@@ -22,12 +23,10 @@ using vision::render::LaserId;
 using vision::render::LaserScene;
 using vision::render::LaserSceneParameters;
 
-constexpr double kDeg = M_PI / 180.0;
-
 // The scanner's stepper (truth): θ_y = θ0 + Δ · step, 1.8° / 32 microsteps.
 struct Stepper {
-  double theta0 = 72.0 * kDeg;
-  double per_step = 1.8 / 32.0 * kDeg;
+  double theta0 = 72.0 * common::kDeg;
+  double per_step = 1.8 / 32.0 * common::kDeg;
   double Cot(int step) const { return 1.0 / std::tan(theta0 + per_step * step); }
 };
 
@@ -255,7 +254,7 @@ TEST(LaserScannerCalibration, MalformedInputIsRefusedByName) {
     CalibrateLaserScanner(images, *camera, options);
     FAIL() << "accepted";
   } catch (const std::invalid_argument& e) {
-    EXPECT_THAT(e.what(), ::testing::ContainsRegex("min_points_per_position = 1"));
+    EXPECT_THAT(e.what(), ::testing::ContainsRegex("min_points_per_position: must be >= 2, got 1"));
     EXPECT_THAT(e.what(), ::testing::ContainsRegex("images\\[0\\].X_CS is not a finite rigid"));
     EXPECT_THAT(e.what(),
                 ::testing::ContainsRegex("images\\[1\\] \\(b.png\\).rotating_pixels\\[3\\] is not "

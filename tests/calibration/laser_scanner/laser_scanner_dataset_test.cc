@@ -52,8 +52,8 @@ LaserScannerDataset Record(const fs::path& dir, const vision::CameraModel& camer
   render.blur_sigma_px = 0.7;
   vision::render::Renderer renderer(camera, render);
   std::vector<uint8_t> pixels(static_cast<size_t>(camera.width()) * camera.height());
-  const vision::render::ImageView8 view{pixels.data(), camera.width(), camera.height(),
-                                        static_cast<size_t>(camera.width())};
+  const vision::ImageView8 view{pixels.data(), camera.width(), camera.height(),
+                                static_cast<size_t>(camera.width())};
   std::mt19937 rng(5);
   std::normal_distribution<double> noise(0.0, 0.1);
   const std::vector<Eigen::Isometry3d> poses = {Pose(0.5, 0.3, 0.25), Pose(0.6, -0.25, -0.3)};

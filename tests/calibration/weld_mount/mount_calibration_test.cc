@@ -7,6 +7,7 @@
 #include <iostream>
 
 #include "calibration/weld_mount/mount_residuals_internal.h"
+#include "common/units.h"
 #include "tests/calibration/weld_mount/simulated_mount_data.h"
 
 namespace kinevis::calibration {
@@ -17,17 +18,16 @@ using testing::DistanceBetween;
 using testing::MakeSimulatedMount;
 using testing::SimulatedMount;
 using testing::SimulatedMountOptions;
-constexpr double kDeg = M_PI / 180.0;
 
 void Print(const char* what, const SimulatedMount& s, const MountCalibrationSummary& r) {
   std::cout << what << ": status " << ToString(r.status) << ", iterations " << r.iterations
             << ", mount error " << DistanceBetween(r.X_5C, s.X_5C_true) * 1e3 << " mm / "
-            << AngleBetween(r.X_5C, s.X_5C_true) / kDeg << " deg (guess "
+            << AngleBetween(r.X_5C, s.X_5C_true) / common::kDeg << " deg (guess "
             << DistanceBetween(s.data.X_5C_guess, s.X_5C_true) * 1e3 << " mm / "
-            << AngleBetween(s.data.X_5C_guess, s.X_5C_true) / kDeg << " deg), block error "
+            << AngleBetween(s.data.X_5C_guess, s.X_5C_true) / common::kDeg << " deg), block error "
             << DistanceBetween(r.X_0B, s.X_0B_true) * 1e3 << " mm / "
-            << AngleBetween(r.X_0B, s.X_0B_true) / kDeg << " deg, std "
-            << r.mount_position_std * 1e3 << " mm / " << r.mount_angle_std / kDeg
+            << AngleBetween(r.X_0B, s.X_0B_true) / common::kDeg << " deg, std "
+            << r.mount_position_std * 1e3 << " mm / " << r.mount_angle_std / common::kDeg
             << " deg, scan rms " << r.scan.rms * 1e3 << " mm (" << r.scan.count
             << " points), touch rms " << r.touch.rms * 1e3 << " mm, sigma ratio " << r.sigma_ratio
             << ", rank " << r.rank << "/" << r.parameter_names.size() << ", cond "
@@ -53,7 +53,7 @@ TEST(MountCalibration, RecoversTheMountFromNoisyScansAndTouches) {
   // Measured (seeds 7, 8, 9): 0.03-0.05 mm and 0.02-0.03° off, reported std 0.035 mm / 0.024°;
   // the guess was 1.15 mm / 0.86° off. Bounds with a 4x margin.
   EXPECT_LT(DistanceBetween(r.X_5C, s.X_5C_true), 0.2e-3);
-  EXPECT_LT(AngleBetween(r.X_5C, s.X_5C_true), 0.1 * kDeg);
+  EXPECT_LT(AngleBetween(r.X_5C, s.X_5C_true), 0.1 * common::kDeg);
   // The reported uncertainty describes the error, and the residuals the noise.
   EXPECT_LT(DistanceBetween(r.X_5C, s.X_5C_true), 5.0 * r.mount_position_std);
   EXPECT_LT(AngleBetween(r.X_5C, s.X_5C_true), 5.0 * r.mount_angle_std);
@@ -71,7 +71,7 @@ TEST(MountCalibration, OtherNoiseDrawsStayWithinTheBounds) {
     Print(("seed " + std::to_string(seed)).c_str(), s, r);
     EXPECT_EQ(r.status, MountCalibrationStatus::kOk);
     EXPECT_LT(DistanceBetween(r.X_5C, s.X_5C_true), 0.2e-3);
-    EXPECT_LT(AngleBetween(r.X_5C, s.X_5C_true), 0.1 * kDeg);
+    EXPECT_LT(AngleBetween(r.X_5C, s.X_5C_true), 0.1 * common::kDeg);
   }
 }
 
@@ -150,7 +150,7 @@ TEST(MountCalibration, SeveralPosesNeedNoSideTouches) {
   Print("top and board touches", s, r);
   EXPECT_EQ(r.status, MountCalibrationStatus::kOk);
   EXPECT_LT(DistanceBetween(r.X_5C, s.X_5C_true), 0.3e-3);
-  EXPECT_LT(AngleBetween(r.X_5C, s.X_5C_true), 0.1 * kDeg);
+  EXPECT_LT(AngleBetween(r.X_5C, s.X_5C_true), 0.1 * common::kDeg);
 }
 
 TEST(MountCalibration, WithDhErrorsReportsWhatTheDataIdentify) {
@@ -183,11 +183,11 @@ TEST(MountCalibration, WithDhErrorsReportsWhatTheDataIdentify) {
   // mount (0.88 mm / 0.27°) and show in the touches (rms 0.38 mm for 0.05 mm noise); estimating
   // the identifiable D–H errors brings the mount to 0.04 mm / 0.03° and the touches to the noise.
   EXPECT_LT(DistanceBetween(nominal.X_5C, s.X_5C_true), 2.0e-3);
-  EXPECT_LT(AngleBetween(nominal.X_5C, s.X_5C_true), 0.6 * kDeg);
+  EXPECT_LT(AngleBetween(nominal.X_5C, s.X_5C_true), 0.6 * common::kDeg);
   EXPECT_GT(nominal.touch.rms, 0.2e-3);
   EXPECT_EQ(r.status, MountCalibrationStatus::kOk);
   EXPECT_LT(DistanceBetween(r.X_5C, s.X_5C_true), 0.2e-3);
-  EXPECT_LT(AngleBetween(r.X_5C, s.X_5C_true), 0.1 * kDeg);
+  EXPECT_LT(AngleBetween(r.X_5C, s.X_5C_true), 0.1 * common::kDeg);
   EXPECT_LT(r.touch.rms, 0.1e-3);
 }
 
@@ -200,8 +200,8 @@ TEST(MountCalibration, RefusesBadInputNamingTheField) {
     CalibrateScannerMount(s.data, bad);
     FAIL();
   } catch (const std::invalid_argument& e) {
-    EXPECT_THAT(e.what(), ::testing::HasSubstr("scan_sigma = -1"));
-    EXPECT_THAT(e.what(), ::testing::HasSubstr("max_iterations = 0"));
+    EXPECT_THAT(e.what(), ::testing::HasSubstr("scan_sigma: must be > 0 (m), got -1"));
+    EXPECT_THAT(e.what(), ::testing::HasSubstr("max_iterations: must be >= 1, got 0"));
   }
   s.data.scans[2].p_C[5].x() = std::nan("");
   s.data.block.size.y() = 0.0;

@@ -12,24 +12,24 @@ using std::chrono::microseconds;
 using std::chrono::milliseconds;
 
 // A simulated clock whose sleep number `stall_at` oversleeps by `stall` (a scheduler stall).
-class StallingClock final : public hal::Clock {
+class StallingClock final : public common::Clock {
  public:
-  StallingClock(int stall_at, hal::Duration stall) : stall_at_(stall_at), stall_(stall) {}
-  hal::Duration Now() const override { return clock_.Now(); }
-  void SleepUntil(hal::Duration deadline) override {
+  StallingClock(int stall_at, common::Duration stall) : stall_at_(stall_at), stall_(stall) {}
+  common::Duration Now() const override { return clock_.Now(); }
+  void SleepUntil(common::Duration deadline) override {
     clock_.SleepUntil(deadline);
     if (++sleeps_ == stall_at_) clock_.Advance(stall_);
   }
 
  private:
-  hal::SimulatedClock clock_;
+  common::SimulatedClock clock_;
   int stall_at_;
-  hal::Duration stall_;
+  common::Duration stall_;
   int sleeps_ = 0;
 };
 
 TEST(DeadlineGridTest, WakesOnTheGridWithExactPeriodsOnASimulatedClock) {
-  hal::SimulatedClock clock;
+  common::SimulatedClock clock;
   DeadlineGrid grid(&clock, milliseconds(1), clock.Now());
   const DeadlineGrid::Wake first = grid.Next();
   EXPECT_TRUE(first.first);
@@ -47,7 +47,7 @@ TEST(DeadlineGridTest, WakesOnTheGridWithExactPeriodsOnASimulatedClock) {
 
 TEST(DeadlineGridTest, ALateWakeUpWithinAPeriodKeepsTheGrid) {
   StallingClock clock(3, microseconds(400));
-  DeadlineGrid grid(&clock, milliseconds(1), hal::Duration::zero());
+  DeadlineGrid grid(&clock, milliseconds(1), common::Duration::zero());
   grid.Next();
   grid.Next();
   const DeadlineGrid::Wake late = grid.Next();  // deadline 3 ms, woke at 3.4 ms
@@ -61,7 +61,7 @@ TEST(DeadlineGridTest, ALateWakeUpWithinAPeriodKeepsTheGrid) {
 
 TEST(DeadlineGridTest, AStallLongerThanAPeriodCountsTheMissedDeadlinesAndResynchronises) {
   StallingClock clock(2, microseconds(3500));
-  DeadlineGrid grid(&clock, milliseconds(1), hal::Duration::zero());
+  DeadlineGrid grid(&clock, milliseconds(1), common::Duration::zero());
   grid.Next();
   const DeadlineGrid::Wake stalled = grid.Next();  // deadline 2 ms, woke at 5.5 ms
   EXPECT_EQ(stalled.time, microseconds(5500));
@@ -73,15 +73,15 @@ TEST(DeadlineGridTest, AStallLongerThanAPeriodCountsTheMissedDeadlinesAndResynch
 }
 
 TEST(DeadlineGridTest, RefusesANullClockAndANonPositivePeriod) {
-  hal::SimulatedClock clock;
-  EXPECT_THROW(DeadlineGrid(nullptr, milliseconds(1), hal::Duration::zero()),
+  common::SimulatedClock clock;
+  EXPECT_THROW(DeadlineGrid(nullptr, milliseconds(1), common::Duration::zero()),
                std::invalid_argument);
-  EXPECT_THROW(DeadlineGrid(&clock, hal::Duration::zero(), hal::Duration::zero()),
+  EXPECT_THROW(DeadlineGrid(&clock, common::Duration::zero(), common::Duration::zero()),
                std::invalid_argument);
 }
 
 TEST(MeasureLoopTimingTest, SimulatedClockIsPerfectlySteady) {
-  hal::SimulatedClock clock;
+  common::SimulatedClock clock;
   const PeriodStatistics s = MeasureLoopTiming(&clock, 0.001, 0.5);
   EXPECT_EQ(s.periods, 499u);
   EXPECT_DOUBLE_EQ(s.mean_s, 0.001);
@@ -102,7 +102,7 @@ TEST(MeasureLoopTimingTest, AStallIsReportedAsNotSteady) {
 
 TEST(MeasureLoopTimingTest, RealClockMeasuresPeriodsNearTheTarget) {
   // Only what cannot flake on a loaded machine: the loop ran, and never woke early.
-  const PeriodStatistics s = MeasureLoopTiming(&hal::SteadyClock::Instance(), 0.002, 0.1);
+  const PeriodStatistics s = MeasureLoopTiming(&common::SteadyClock::Instance(), 0.002, 0.1);
   EXPECT_GT(s.periods, 0u);
   EXPECT_LE(s.periods, 50u);
   EXPECT_GE(s.min_s, 0.0);
@@ -110,7 +110,7 @@ TEST(MeasureLoopTimingTest, RealClockMeasuresPeriodsNearTheTarget) {
 }
 
 TEST(MeasureLoopTimingTest, RefusesBadPeriodsAndDurationsNamingThem) {
-  hal::SimulatedClock clock;
+  common::SimulatedClock clock;
   try {
     MeasureLoopTiming(&clock, 0.0, 1.0);
     FAIL() << "no throw";

@@ -8,6 +8,7 @@
 #include <memory>
 #include <vector>
 
+#include "common/units.h"
 #include "control/diamond/diamond_loop.h"
 #include "vision/camera/camera_file.h"
 #include "vision/camera/pinhole_camera.h"
@@ -18,8 +19,6 @@ namespace {
 
 using robots::DiamondModel;
 using ::testing::HasSubstr;
-
-constexpr double kDeg = M_PI / 180.0;
 
 Eigen::Isometry3d CameraPose() { return vision::render::DiamondCameraPose(0.4462); }
 
@@ -35,7 +34,9 @@ std::unique_ptr<vision::CameraModel> SeedCamera() {
 
 Eigen::Vector2d JointsAt(const DiamondModel& model, double phi_deg, double gamma_deg) {
   Eigen::Vector2d q;
-  EXPECT_TRUE(robots::InverseKinematics(model, {phi_deg * kDeg, gamma_deg * kDeg}, &q).ok());
+  EXPECT_TRUE(
+      robots::InverseKinematics(model, {phi_deg * common::kDeg, gamma_deg * common::kDeg}, &q)
+          .ok());
   return q;
 }
 
@@ -102,7 +103,7 @@ TEST(DiamondTaskPdLawTest, CommandsTheFeedForwardOnTheLineAndCorrectsAnError) {
   ASSERT_TRUE(DiamondLineReference(line, model.radius, t, &x, &r));
   Eigen::Vector2d q;
   ASSERT_TRUE(robots::InverseKinematics(model, x, &q).ok());
-  law.Start(q, hal::Duration{0});
+  law.Start(q, common::Duration{0});
   DiamondCycleInput in;
   in.t = t;
   in.dt = 0.001;
@@ -117,7 +118,7 @@ TEST(DiamondTaskPdLawTest, CommandsTheFeedForwardOnTheLineAndCorrectsAnError) {
   // Off the line by 0.01 rad in γ: J q̇ = ẋ* + kp e.
   Eigen::Vector2d q_off;
   ASSERT_TRUE(robots::InverseKinematics(model, x - Eigen::Vector2d(0, 0.01), &q_off).ok());
-  law.Start(q_off, hal::Duration{0});
+  law.Start(q_off, common::Duration{0});
   in.q = q_off;
   out = law.Step(in);
   robots::ForwardKinematics(model, q_off, &data);
@@ -132,7 +133,7 @@ TEST(DiamondTaskPdLawTest, FinishesWhenSettledAndStopsWhenItCannotSettle) {
   DiamondTaskPdLaw law(model, line);
   Eigen::Vector2d q;
   ASSERT_TRUE(robots::InverseKinematics(model, line.to, &q).ok());
-  law.Start(q, hal::Duration{0});
+  law.Start(q, common::Duration{0});
   DiamondCycleInput in;
   in.dt = 0.001;
   in.q = q;
@@ -143,7 +144,7 @@ TEST(DiamondTaskPdLawTest, FinishesWhenSettledAndStopsWhenItCannotSettle) {
   EXPECT_EQ(state, DiamondLawState::kDone);
   // Readings stuck 0.05 rad away: not settled within settle_timeout_s.
   ASSERT_TRUE(robots::InverseKinematics(model, line.to - Eigen::Vector2d(0, 0.05), &q).ok());
-  law.Start(q, hal::Duration{0});
+  law.Start(q, common::Duration{0});
   in.q = q;
   in.t = 2.0;
   const DiamondLawOutput out = law.Step(in);
@@ -163,9 +164,9 @@ TEST(DiamondTaskPdLawTest, BadSetUpIsRefusedNamingEveryField) {
     DiamondTaskPdLaw law(model, line, o);
     FAIL();
   } catch (const std::invalid_argument& e) {
-    EXPECT_THAT(e.what(), HasSubstr("kp = -1"));
-    EXPECT_THAT(e.what(), HasSubstr("max_condition = 0.5"));
-    EXPECT_THAT(e.what(), HasSubstr("line.duration_s = 0"));
+    EXPECT_THAT(e.what(), HasSubstr("kp: must be > 0 (1/s), got -1"));
+    EXPECT_THAT(e.what(), HasSubstr("max_condition: must be > 1, got 0.5"));
+    EXPECT_THAT(e.what(), HasSubstr("line.duration_s: must be > 0, got 0"));
     EXPECT_THAT(e.what(), HasSubstr("model: "));
   }
 }
@@ -224,7 +225,7 @@ TEST(MarkerJacobianTest, MatchesFiniteDifferencesOfTheProjectedForwardKinematics
 class ScriptedSource final : public MarkerFeatureSource {
  public:
   std::deque<MarkerFrame> frames;
-  bool Poll(hal::Duration now, MarkerFrame* frame) override {
+  bool Poll(common::Duration now, MarkerFrame* frame) override {
     if (frames.empty()) return false;
     *frame = frames.front();
     frame->timestamp = now;
@@ -270,7 +271,7 @@ TEST(DiamondMarkerServoTest, HoldsOnAMissedFrameStopsWhenTheMarkerIsLostOrTheCam
   DiamondMarkerServo servo(model, *camera, CameraPose(), &source, options);
   const Eigen::Vector2d q = JointsAt(model, 95, 45);
   servo.SetTarget({600, 300});
-  servo.Start(q, hal::Duration{0});
+  servo.Start(q, common::Duration{0});
   DiamondCycleInput in;
   in.q = q;
   in.dt = 0.001;
@@ -292,7 +293,7 @@ TEST(DiamondMarkerServoTest, HoldsOnAMissedFrameStopsWhenTheMarkerIsLostOrTheCam
   EXPECT_EQ(lost.state, DiamondLawState::kStop);
   EXPECT_STREQ(lost.reason, "marker lost");
 
-  servo.Start(q, hal::Duration{0});
+  servo.Start(q, common::Duration{0});
   source.frames = {seen};
   in.now = std::chrono::milliseconds(10);
   EXPECT_EQ(servo.Step(in).state, DiamondLawState::kRunning);

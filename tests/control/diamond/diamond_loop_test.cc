@@ -10,6 +10,7 @@
 #include <thread>
 #include <vector>
 
+#include "common/units.h"
 #include "control/diamond/diamond_drives.h"
 #include "control/diamond/diamond_laws.h"
 #include "hal/mock/rs485_drive_sim.h"
@@ -25,8 +26,6 @@ namespace {
 using namespace std::chrono_literals;
 using robots::DiamondModel;
 using ::testing::HasSubstr;
-
-constexpr double kDeg = M_PI / 180.0;
 
 // The host side on a DiamondWorld: both drives on the world's pty, on the world's clock
 // (stepped: its waits step the world; the Modbus exchanges run in real time on the pty).
@@ -46,7 +45,7 @@ Eigen::Vector2d TopView(const Eigen::Vector3d& p) { return p.head<2>(); }
 
 bool Active(hal::Rs485DriveBus* bus) {
   for (hal::MotorDrive* d : bus->drives()) {
-    if (d->lifecycle() == hal::DeviceLifecycle::kActive) return true;
+    if (d->lifecycle() == common::DeviceLifecycle::kActive) return true;
   }
   return false;
 }
@@ -111,7 +110,7 @@ TEST(DiamondControlLoopTest, ALineLeavingTheWorkspaceStopsAtTheLimitWithoutComma
   auto bus = Host(&world);
   DiamondLine line;
   line.from = world.plant().task;
-  line.to = {M_PI / 2, 89 * kDeg};  // the box ends at 85°
+  line.to = {M_PI / 2, 89 * common::kDeg};  // the box ends at 85°
   line.duration_s = 2.0;
   const DiamondModel& model = world.true_model();
   DiamondTaskPdLaw law(model, line);
@@ -157,12 +156,12 @@ TEST(DiamondControlLoopTest, ADriveFaultStopsBothDrivesAndNamesTheDriveAndCode) 
 }
 
 // A clock that steps a bare drive simulator (no world) whenever the host waits.
-class SimStepClock final : public hal::Clock {
+class SimStepClock final : public common::Clock {
  public:
-  hal::SimulatedClock time;
+  common::SimulatedClock time;
   hal::Rs485DriveSim* sim = nullptr;
-  hal::Duration Now() const override { return time.Now(); }
-  void SleepUntil(hal::Duration deadline) override {
+  common::Duration Now() const override { return time.Now(); }
+  void SleepUntil(common::Duration deadline) override {
     if (deadline > time.Now()) time.AdvanceTo(deadline);
     if (sim) sim->Step();
   }
@@ -204,7 +203,7 @@ TEST(DiamondControlLoopTest, ALostLinkStopsTheRobotAndIsReportedAsSuch) {
   ASSERT_EQ(report.outcome, DiamondLoopOutcome::kDriveFault) << report.message;
   EXPECT_THAT(report.message, HasSubstr("arm2"));
   EXPECT_THAT(report.message, HasSubstr("link lost"));
-  EXPECT_NE(bus->drives()[0]->lifecycle(), hal::DeviceLifecycle::kActive);
+  EXPECT_NE(bus->drives()[0]->lifecycle(), common::DeviceLifecycle::kActive);
   sim.Stop();
 }
 
@@ -235,7 +234,7 @@ class RenderedCamera {
   }
   bool hide = false;
   DetectedMarkerSource::Grabber Grabber() {
-    return [this](hal::Duration now, vision::render::ImageView8* image, hal::Duration* stamp) {
+    return [this](common::Duration now, vision::ImageView8* image, common::Duration* stamp) {
       if (started_ && now < next_) return false;
       started_ = true;
       next_ = now + std::chrono::microseconds(16667);
@@ -243,8 +242,8 @@ class RenderedCamera {
       sp.X_CO = X_CO();
       sp.p_O_T = world_->plant().p_O_T;
       const vision::render::DiamondMarkerScene scene(sp);
-      *image = vision::render::ImageView8{pixels_.data(), camera_->width(), camera_->height(),
-                                          static_cast<size_t>(camera_->width())};
+      *image = vision::ImageView8{pixels_.data(), camera_->width(), camera_->height(),
+                                  static_cast<size_t>(camera_->width())};
       renderer_->Render(scene, ++frame_, *image);
       if (hide) std::fill(pixels_.begin(), pixels_.end(), uint8_t{5});
       *stamp = now;
@@ -258,7 +257,7 @@ class RenderedCamera {
   std::unique_ptr<vision::render::Renderer> renderer_;
   std::vector<uint8_t> pixels_;
   bool started_ = false;
-  hal::Duration next_{0};
+  common::Duration next_{0};
   uint64_t frame_ = 0;
 };
 
@@ -269,9 +268,10 @@ TEST(DiamondControlLoopTest, VisualServoReachesTheTargetPixelFromRenderedImages)
   auto bus = Host(&world);
   RenderedCamera cam(&world);
   Eigen::Vector2d target;
-  ASSERT_EQ(cam.camera().Project(cam.X_CO() * robots::DiamondToolPoint(world.true_model().radius,
-                                                                       100 * kDeg, 52 * kDeg),
-                                 &target),
+  ASSERT_EQ(cam.camera().Project(
+                cam.X_CO() * robots::DiamondToolPoint(world.true_model().radius, 100 * common::kDeg,
+                                                      52 * common::kDeg),
+                &target),
             vision::ProjectionStatus::kOk);
   DetectedMarkerSource source(cam.Grabber());
   DiamondMarkerServo servo(world.nominal_model(), cam.camera(), cam.X_CO(), &source);

@@ -194,7 +194,7 @@ TEST(ImageLegFeatureSourceTest, PollsAFrameOnlyWhenTheCameraHasOneDue) {
   World w("hexapod-omni");
   auto source = w.MakeSource();
   LegFeatureFrame frame;
-  const hal::Duration t0 = w.world().clock().Now();
+  const common::Duration t0 = w.world().clock().Now();
   ASSERT_TRUE(source->Poll(t0, &frame));
   EXPECT_FALSE(source->Poll(t0, &frame));  // same instant: nothing new
   w.world().Step(50ms);                    // half a period at 10 fps
@@ -233,7 +233,7 @@ TEST(ImageLegFeatureSourceTest, AsynchronousModeHandsOverFramesWithoutWaiting) {
   format.fps = 20;
   const std::string name = "async-" + TestName();
   // A slow camera: every frame takes at least 150 ms to come.
-  hal::RegisterRenderSource(name, format, [&](uint64_t id, hal::Duration, hal::Image* image) {
+  hal::RegisterRenderSource(name, format, [&](uint64_t id, common::Duration, hal::Image* image) {
     std::this_thread::sleep_for(150ms);
     renderer.Render(scene, id, {image->data.data(), image->width, image->height, image->stride});
     return std::error_code();
@@ -254,7 +254,7 @@ TEST(ImageLegFeatureSourceTest, AsynchronousModeHandsOverFramesWithoutWaiting) {
     const auto end = std::chrono::steady_clock::now() + 3s;
     while (frames < 3 && std::chrono::steady_clock::now() < end) {
       const auto t0 = std::chrono::steady_clock::now();
-      const bool got = source.Poll(hal::SteadyClock::Instance().Now(), &frame);
+      const bool got = source.Poll(common::SteadyClock::Instance().Now(), &frame);
       slowest_poll_ms = std::max(
           slowest_poll_ms,
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
@@ -298,7 +298,7 @@ TEST(ImageLegFeatureSourceTest, ServoLoopConvergesOnFeaturesFromRenderedImages) 
     Vector6d s0;
     for (int j = 0; j < kHexapodLegs; ++j) s0[j] = w.master().can_drives()[j]->status().position;
     // A cosine ramp over 1 s (a step would trip the drives' following-error supervision).
-    const hal::Duration start = w.world().clock().Now();
+    const common::Duration start = w.world().clock().Now();
     w.master().RunCyclesUntil(start + 1500ms, [&] {
       const double t =
           std::min(1.0, std::chrono::duration<double>(w.world().clock().Now() - start).count());

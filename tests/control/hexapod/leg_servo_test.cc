@@ -9,6 +9,9 @@
 #include <random>
 #include <vector>
 
+#include "common/so3.h"
+#include "common/units.h"
+
 namespace kinevis::control {
 namespace {
 
@@ -16,20 +19,13 @@ using robots::HexapodData;
 using robots::HexapodModel;
 using ::testing::HasSubstr;
 
-constexpr double kPi = 3.14159265358979323846;
-
 // A camera in front of the robot: X_BC = {[0, -1.2, 0.9], rpy (-113, 0, 0)°}.
 Eigen::Isometry3d CameraPose_CB() {
   Eigen::Isometry3d X_BC = Eigen::Isometry3d::Identity();
-  X_BC.linear() = Eigen::AngleAxisd(-113.0 * kPi / 180.0, Eigen::Vector3d::UnitX()).matrix();
+  X_BC.linear() =
+      Eigen::AngleAxisd(-113.0 * common::kPi / 180.0, Eigen::Vector3d::UnitX()).matrix();
   X_BC.translation() = Eigen::Vector3d(0.0, -1.2, 0.9);
   return X_BC.inverse();
-}
-
-Eigen::Matrix3d Skew(const Eigen::Vector3d& a) {
-  Eigen::Matrix3d s;
-  s << 0.0, -a.z(), a.y(), a.z(), 0.0, -a.x(), -a.y(), a.x(), 0.0;
-  return s;
 }
 
 // Moves the platform by the twist τ (in C, referred to C's origin) applied for time eps:
@@ -134,7 +130,7 @@ TEST(LegServoTest, InteractionMatrixEqualsTheRobotsOneAfterMovingTheReferencePoi
     // the velocity of the point at C's origin.
     const Eigen::Vector3d p_C_P = X_CB * X_BP.translation();
     robots::Matrix6d shift = robots::Matrix6d::Identity();
-    shift.topRightCorner<3, 3>() = -Skew(p_C_P);
+    shift.topRightCorner<3, 3>() = -common::Skew(p_C_P);
     for (int j = 0; j < kHexapodLegs; ++j) {
       const Matrix36d L_P = robots::LegDirectionInteractionMatrixInCamera(data, j, X_CB);
       const Matrix36d L_O = LegDirectionInteractionMatrixAtCameraOrigin(p_C_A[j], m.u_C[j], m.q[j]);

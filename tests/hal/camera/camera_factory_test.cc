@@ -18,7 +18,7 @@ using ::testing::MatchesRegex;
 std::string ParseError(const std::string& source) {
   try {
     ParseCameraSource(source);
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     return e.what();
   }
   return "(no ConfigError)";
@@ -145,25 +145,26 @@ TEST(ParseCameraSourceTest, WidthAndHeightGoTogether) {
 }
 
 TEST(OpenCameraTest, BadStringsThrowConfigErrorBeforeOpeningAnything) {
-  EXPECT_THROW(OpenCamera("v4l2:/dev/video0,width=640"), ConfigError);
-  EXPECT_THROW(OpenCamera("gige:cam1"), ConfigError);
+  EXPECT_THROW(OpenCamera("v4l2:/dev/video0,width=640"), common::ConfigError);
+  EXPECT_THROW(OpenCamera("gige:cam1"), common::ConfigError);
 }
 
 TEST(OpenCameraTest, OpensASimCameraConfiguredOnTheGivenClock) {
   RegisterRenderSource(
       "factory-test", CameraFormat{2, 2, PixelFormat::kMono8, 10.0},
-      [](uint64_t, Duration, Image*) { return std::error_code(); }, "intr-a");
-  SimulatedClock clock(SimulatedClock::Mode::kFreeRunning, Duration(std::chrono::seconds(3)));
+      [](uint64_t, common::Duration, Image*) { return std::error_code(); }, "intr-a");
+  common::SimulatedClock clock(common::SimulatedClock::Mode::kFreeRunning,
+                               common::Duration(std::chrono::seconds(3)));
   auto camera = OpenCamera("sim:factory-test,fps=20,intrinsics=intr-b", clock);
   EXPECT_EQ(camera->name(), "sim:factory-test,fps=20,intrinsics=intr-b");
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_DOUBLE_EQ(camera->format().fps, 20.0);
   EXPECT_EQ(camera->intrinsics_id(), "intr-b");
   ASSERT_FALSE(camera->Start());
   Image image;
   ASSERT_FALSE(camera->Grab(&image, std::chrono::milliseconds(100)));
   ASSERT_FALSE(camera->Grab(&image, std::chrono::milliseconds(100)));
-  EXPECT_EQ(image.timestamp, Duration(std::chrono::milliseconds(3050)));
+  EXPECT_EQ(image.timestamp, common::Duration(std::chrono::milliseconds(3050)));
   EXPECT_TRUE(UnregisterRenderSource("factory-test"));
 }
 

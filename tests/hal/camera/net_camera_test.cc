@@ -35,7 +35,7 @@ uint8_t PatternByte(uint64_t frame_id, size_t i) {
   return static_cast<uint8_t>(x >> 11);
 }
 
-std::error_code PaintPattern(uint64_t frame_id, Duration, Image* image) {
+std::error_code PaintPattern(uint64_t frame_id, common::Duration, Image* image) {
   for (size_t i = 0; i < image->data.size(); ++i) image->data[i] = PatternByte(frame_id, i);
   return {};
 }
@@ -66,7 +66,7 @@ std::unique_ptr<NetCamera> OpenNet(const std::string& source) {
 std::string ParseError(const std::string& source) {
   try {
     ParseNetCameraSource(source);
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     return e.what();
   }
   return "no error";
@@ -242,14 +242,14 @@ TEST(FrameServerTest, RejectsBadOptionsNamingEveryField) {
   try {
     FrameServer::Listen(FrameSource(), options);
     FAIL() << "no ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), HasSubstr("frame source is empty"));
     EXPECT_THAT(e.what(), HasSubstr("port 70000 is not in 0..65535"));
     EXPECT_THAT(e.what(), HasSubstr("fps 0.000000 is not in (0, 10000]"));
     EXPECT_THAT(e.what(), HasSubstr("max_clients 0 is not in 1..1024"));
   }
   EXPECT_THROW(RenderFrameSource(CameraFormat{0, 4, PixelFormat::kMono8, 30.0}, PaintPattern, ""),
-               ConfigError);
+               common::ConfigError);
 }
 
 // ---- Source strings --------------------------------------------------------------------------
@@ -293,13 +293,13 @@ TEST(NetCameraSourceTest, BadStringsNameTheBadField) {
   EXPECT_THAT(all, HasSubstr("timeout_ms \"-5\""));
   EXPECT_THAT(all, HasSubstr("unknown option \"loop\""));
   // Through the factory: ConfigError before any connection is tried.
-  EXPECT_THROW(OpenCamera("net:127.0.0.1:0"), ConfigError);
+  EXPECT_THROW(OpenCamera("net:127.0.0.1:0"), common::ConfigError);
   // The generic spec parser knows the kind and validates with the net parser.
   const CameraSourceSpec spec = ParseCameraSource("net:127.0.0.1:5000,intrinsics=cam0");
   EXPECT_EQ(spec.kind, CameraSourceSpec::Kind::kNet);
   EXPECT_EQ(spec.target, "127.0.0.1:5000");
   EXPECT_EQ(spec.intrinsics_id, "cam0");
-  EXPECT_THROW(ParseCameraSource("net:127.0.0.1:99999"), ConfigError);
+  EXPECT_THROW(ParseCameraSource("net:127.0.0.1:99999"), common::ConfigError);
 }
 
 // ---- Streaming -------------------------------------------------------------------------------
@@ -309,7 +309,7 @@ TEST(NetCameraTest, FramesArriveBitIdenticalWithIncreasingIds) {
   auto server = PatternServer(format, "hexapod-perspective-v1");
   EXPECT_THAT(server->backend(), MatchesRegex("net:127\\.0\\.0\\.1:[0-9]+"));
   auto camera = OpenNet(server->backend());
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_EQ(camera->format().width, 64);
   EXPECT_EQ(camera->format().height, 48);
   EXPECT_EQ(camera->format().pixel_format, PixelFormat::kBgr8);
@@ -360,7 +360,7 @@ TEST(NetCameraTest, PaddedRowsMono16AndTimeStampsCrossUnchanged) {
     sent = image->data;
     image->frame_id = next;
     next += 3;  // a source that numbers with gaps
-    image->timestamp = Duration(123'456'789'000LL + static_cast<int64_t>(image->frame_id));
+    image->timestamp = common::Duration(123'456'789'000LL + static_cast<int64_t>(image->frame_id));
     image->intrinsics_id = "";
     return {};
   };
@@ -439,7 +439,7 @@ TEST(NetCameraTest, ASourceErrorIsPassedOnAndTheCameraStaysActive) {
   Image image;
   EXPECT_FALSE(camera->Grab(&image, 1000ms));  // call 1
   EXPECT_EQ(camera->Grab(&image, 1000ms), make_error_code(Errc::kDeviceFault));
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kActive);
   EXPECT_FALSE(camera->Grab(&image, 1000ms));  // call 3
   EXPECT_EQ(image.frame_id, 3u);
   EXPECT_EQ(camera->counters().decode_errors, 1u);
@@ -471,16 +471,16 @@ TEST(NetCameraTest, ServerStopsAnsweringGrabTimesOutThenFaultsWithoutHanging) {
   server->StopAnswering(std::chrono::milliseconds::max());
   // A short grab timeout is a timeout, not a lost link: the camera stays active...
   EXPECT_EQ(camera->Grab(&image, 20ms), make_error_code(Errc::kTimeout));
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kActive);
   // ...until the request has gone unanswered for timeout_ms.
   std::error_code ec;
   int grabs = 1;
-  while (camera->lifecycle() == DeviceLifecycle::kActive && grabs < 100) {
+  while (camera->lifecycle() == common::DeviceLifecycle::kActive && grabs < 100) {
     ec = camera->Grab(&image, 50ms);
     EXPECT_EQ(ec, make_error_code(Errc::kTimeout));
     ++grabs;
   }
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_LT(grabs, 100);
   EXPECT_GE(camera->counters().timeouts, 2u);
   EXPECT_THAT(camera->last_error(),
@@ -498,7 +498,7 @@ TEST(NetCameraTest, ServerStopsAnsweringGrabTimesOutThenFaultsWithoutHanging) {
   }
   server->ResumeAnswering();
   camera->Open();
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kConfigured);
   ASSERT_FALSE(camera->Start());
   ASSERT_FALSE(camera->Grab(&image, 1000ms)) << camera->last_error();
   ExpectPattern(image, image.frame_id);
@@ -513,7 +513,7 @@ TEST(NetCameraTest, DroppedConnectionFaultsAndOpenReconnects) {
   EXPECT_EQ(server->DropConnections(), 1);
   const std::error_code ec = camera->Grab(&image, 1000ms);
   EXPECT_EQ(ec, make_error_code(Errc::kClosed));
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_THAT(camera->last_error(),
               MatchesRegex("net:127\\.0\\.0\\.1:[0-9]+: grab failed: (the server closed the "
                            "connection|cannot send a request: .*|receive failed: .*); camera in "
@@ -535,7 +535,7 @@ TEST(NetCameraTest, BadMagicFaultsWithAClearMessage) {
   ASSERT_FALSE(camera->Grab(&image, 1000ms));
   server->CorruptMagic(1);
   EXPECT_EQ(camera->Grab(&image, 1000ms), make_error_code(Errc::kProtocol));
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(camera->counters().decode_errors, 1u);
   EXPECT_THAT(camera->last_error(),
               MatchesRegex("net:127\\.0\\.0\\.1:[0-9]+: grab failed: bad magic 0x00000000 in a "
@@ -571,7 +571,7 @@ TEST(NetCameraTest, OpenWithNoServerNamesTheSourceAndTheCause) {
   }
   NetCamera camera(source, ParseNetCameraSource(source));
   EXPECT_THROW(camera.Open(), HalError);
-  EXPECT_EQ(camera.lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(camera.lifecycle(), common::DeviceLifecycle::kUnconfigured);
   EXPECT_THAT(camera.last_error(), HasSubstr("cannot connect"));
 }
 
@@ -580,7 +580,7 @@ TEST(NetCameraTest, OpenWithNoServerNamesTheSourceAndTheCause) {
 TEST(NetCameraThroughputTest, Vga640x480Mono8) {
   // A source that only stamps the frame id into the pixels, so the transport is what is timed.
   const CameraFormat format{640, 480, PixelFormat::kMono8, 30.0};
-  RenderFn cheap = [](uint64_t frame_id, Duration, Image* image) {
+  RenderFn cheap = [](uint64_t frame_id, common::Duration, Image* image) {
     std::memset(image->data.data(), static_cast<int>(frame_id & 0xFF), image->data.size());
     return std::error_code();
   };

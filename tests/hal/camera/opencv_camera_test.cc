@@ -114,7 +114,7 @@ std::unique_ptr<Camera> Started(const std::string& source) {
 
 TEST(OpenCvCameraFileTest, ReadsEveryFrameInOrderWithContainerTimestamps) {
   auto camera = OpenCamera("file:" + VideoPath());
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kConfigured);
   const CameraFormat f = camera->format();
   EXPECT_EQ(f.width, kWidth);
   EXPECT_EQ(f.height, kHeight);
@@ -123,7 +123,7 @@ TEST(OpenCvCameraFileTest, ReadsEveryFrameInOrderWithContainerTimestamps) {
   ASSERT_FALSE(camera->Start());
 
   Image image;
-  std::vector<Duration> stamps;
+  std::vector<common::Duration> stamps;
   std::error_code ec;
   while (!(ec = camera->Grab(&image, 100ms))) {
     ASSERT_EQ(image.frame_id, stamps.size());
@@ -143,7 +143,7 @@ TEST(OpenCvCameraFileTest, ReadsEveryFrameInOrderWithContainerTimestamps) {
     }
   }
   EXPECT_EQ(camera->Grab(&image, 100ms), Errc::kClosed);  // and stays closed
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kActive);
   EXPECT_EQ(camera->counters().frames, static_cast<uint64_t>(kVideoFrames));
   EXPECT_EQ(camera->counters().decode_errors, 0u);
 }
@@ -154,7 +154,7 @@ TEST(OpenCvCameraFileTest, FpsOptionSetsTheTimestampsFromTheFrameIndex) {
   Image image;
   for (int k = 0; k < 5; ++k) {
     ASSERT_FALSE(camera->Grab(&image, 100ms));
-    EXPECT_EQ(image.timestamp, Duration(40ms) * k);
+    EXPECT_EQ(image.timestamp, common::Duration(40ms) * k);
   }
 }
 
@@ -165,7 +165,7 @@ TEST(OpenCvCameraFileTest, LoopKeepsIdsAndTimestampsIncreasing) {
     ASSERT_FALSE(camera->Grab(&image, 100ms)) << k;
     ASSERT_EQ(image.frame_id, static_cast<uint64_t>(k));
     ASSERT_EQ(EncodedFrameNumber(image), k % kVideoFrames);
-    ASSERT_EQ(image.timestamp, Duration(100ms) * k);
+    ASSERT_EQ(image.timestamp, common::Duration(100ms) * k);
   }
 }
 
@@ -233,7 +233,7 @@ TEST(OpenCvCameraLatestTest, ReplaysARecordingAsALiveCameraDroppingWhatASlowRead
   std::error_code ec;
   while (!(ec = camera->Grab(&image, 5s))) {
     EXPECT_EQ(EncodedFrameNumber(image), static_cast<int>(image.frame_id));
-    EXPECT_EQ(image.timestamp, Duration(5ms) * image.frame_id);
+    EXPECT_EQ(image.timestamp, common::Duration(5ms) * image.frame_id);
     if (!ids.empty()) {
       EXPECT_GT(image.frame_id, ids.back());
     }
@@ -241,7 +241,7 @@ TEST(OpenCvCameraLatestTest, ReplaysARecordingAsALiveCameraDroppingWhatASlowRead
     std::this_thread::sleep_for(30ms);
   }
   EXPECT_EQ(ec, Errc::kClosed);
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kActive);
   const CameraCounters c = camera->counters();
   EXPECT_EQ(c.frames, ids.size());
   // Every frame of the recording was either delivered or replaced unseen; the last one is always
@@ -262,7 +262,7 @@ TEST(OpenCvCameraLatestTest, WaitsAtMostTheTimeoutAndStopsPromptly) {
   const auto before_stop = std::chrono::steady_clock::now();
   camera->Stop();  // the grabber is pacing towards frame 1, 5 s away
   EXPECT_LT(std::chrono::steady_clock::now() - before_stop, 2s);
-  EXPECT_EQ(camera->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(camera->lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_EQ(camera->Grab(&image, 50ms), Errc::kNotActive);
 }
 
@@ -296,7 +296,7 @@ TEST(OpenCvCameraImagesTest, SortedGlobWithACorruptFileCountedAndSkipped) {
   while (!(ec = camera->Grab(&image, 100ms))) {
     ids.push_back(image.frame_id);
     EXPECT_EQ(image.data[0], 40 * image.frame_id);
-    EXPECT_EQ(image.timestamp, Duration(200ms) * image.frame_id);
+    EXPECT_EQ(image.timestamp, common::Duration(200ms) * image.frame_id);
   }
   EXPECT_EQ(ec, Errc::kClosed);
   EXPECT_EQ(ids, (std::vector<uint64_t>{0, 1, 2, 4, 5}));
@@ -430,16 +430,16 @@ TEST(OpenCvCameraTest, InconsistentOptionsThrowConfigErrorNamingEach) {
   try {
     camera.Open();
     FAIL() << "no ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), HasSubstr("fps -2"));
     EXPECT_THAT(e.what(), HasSubstr("width and height go together"));
     EXPECT_THAT(e.what(), HasSubstr("width and height apply to v4l2 only"));
   }
-  EXPECT_EQ(camera.lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(camera.lifecycle(), common::DeviceLifecycle::kUnconfigured);
 }
 
 TEST(SaveImageTest, RefusesEmptyImagesAndUnwritablePaths) {
-  EXPECT_THROW(SaveImage(Image(), TestDir() + "/empty.png"), ConfigError);
+  EXPECT_THROW(SaveImage(Image(), TestDir() + "/empty.png"), common::ConfigError);
   try {
     SaveImage(MonoImage(2, 2, 0), TestDir() + "/no/such/dir/x.png");
     FAIL() << "no HalError";

@@ -20,7 +20,7 @@ using ::testing::MatchesRegex;
 // A 4x3 mono8 source whose every pixel holds the low byte of the frame id.
 CameraFormat SmallFormat(double fps = 50.0) { return CameraFormat{4, 3, PixelFormat::kMono8, fps}; }
 
-std::error_code PaintFrameId(uint64_t frame_id, Duration, Image* image) {
+std::error_code PaintFrameId(uint64_t frame_id, common::Duration, Image* image) {
   for (uint8_t& b : image->data) b = static_cast<uint8_t>(frame_id);
   return {};
 }
@@ -51,11 +51,11 @@ TEST(RenderSourceRegistryTest, ListsSortedNamesAndUnregisters) {
 
 TEST(RenderSourceRegistryTest, RejectsDuplicatesAndBadFormatsNamingEveryProblem) {
   ScopedSource a("dup", SmallFormat(), PaintFrameId);
-  EXPECT_THROW(RegisterRenderSource("dup", SmallFormat(), PaintFrameId), ConfigError);
+  EXPECT_THROW(RegisterRenderSource("dup", SmallFormat(), PaintFrameId), common::ConfigError);
   try {
     RegisterRenderSource("bad", CameraFormat{0, 3, PixelFormat::kMono8, -1.0}, RenderFn());
     FAIL() << "no ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), HasSubstr("\"bad\""));
     EXPECT_THAT(e.what(), HasSubstr("size 0x3"));
     EXPECT_THAT(e.what(), HasSubstr("fps"));
@@ -75,18 +75,18 @@ TEST(SimCameraTest, UnknownSourceErrorListsTheRegisteredNames) {
     EXPECT_THAT(e.what(), MatchesRegex(".*sim:nope: open failed: no render source \"nope\" "
                                        "\\(registered: hexapod-perspective, weld-torch\\).*"));
   }
-  EXPECT_EQ(camera.lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(camera.lifecycle(), common::DeviceLifecycle::kUnconfigured);
 }
 
 TEST(SimCameraTest, FollowsTheLifecycle) {
   ScopedSource s("life", SmallFormat(), PaintFrameId, "cam-intrinsics-7");
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   SimCamera camera("sim:life", SimCameraOptions{"life", 0.0, ""}, clock);
   Image image;
   EXPECT_EQ(camera.Grab(&image, 100ms), Errc::kNotActive);
   EXPECT_EQ(camera.Start(), Errc::kNotActive);
   camera.Open();
-  EXPECT_EQ(camera.lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(camera.lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_EQ(camera.format().width, 4);
   EXPECT_EQ(camera.format().height, 3);
   EXPECT_EQ(camera.format().pixel_format, PixelFormat::kMono8);
@@ -94,16 +94,16 @@ TEST(SimCameraTest, FollowsTheLifecycle) {
   EXPECT_EQ(camera.intrinsics_id(), "cam-intrinsics-7");
   EXPECT_EQ(camera.Grab(&image, 100ms), Errc::kNotActive);
   ASSERT_FALSE(camera.Start());
-  EXPECT_EQ(camera.lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(camera.lifecycle(), common::DeviceLifecycle::kActive);
   EXPECT_FALSE(camera.Grab(&image, 100ms));
   camera.Stop();
-  EXPECT_EQ(camera.lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(camera.lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_EQ(camera.Grab(&image, 100ms), Errc::kNotActive);
 }
 
 TEST(SimCameraTest, PacesFramesOnASimulatedClockFasterThanRealTime) {
   ScopedSource s("pace", SmallFormat(50.0), PaintFrameId, "intr");
-  SimulatedClock clock(SimulatedClock::Mode::kFreeRunning, Duration(1s));
+  common::SimulatedClock clock(common::SimulatedClock::Mode::kFreeRunning, common::Duration(1s));
   SimCamera camera("sim:pace", SimCameraOptions{"pace", 0.0, ""}, clock);
   camera.Open();
   ASSERT_FALSE(camera.Start());
@@ -113,7 +113,7 @@ TEST(SimCameraTest, PacesFramesOnASimulatedClockFasterThanRealTime) {
   for (uint64_t k = 0; k < 500; ++k) {
     ASSERT_FALSE(camera.Grab(&image, 1s)) << "frame " << k;
     ASSERT_EQ(image.frame_id, k);
-    ASSERT_EQ(image.timestamp, Duration(1s) + Duration(20ms) * k);
+    ASSERT_EQ(image.timestamp, common::Duration(1s) + common::Duration(20ms) * k);
     ASSERT_EQ(clock.Now(), image.timestamp);
     ASSERT_EQ(image.data[0], static_cast<uint8_t>(k));
   }
@@ -130,7 +130,7 @@ TEST(SimCameraTest, PacesFramesOnASimulatedClockFasterThanRealTime) {
 
 TEST(SimCameraTest, FpsOptionOverridesTheRegisteredRateAndIntrinsics) {
   ScopedSource s("rate", SmallFormat(50.0), PaintFrameId, "registered");
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   SimCamera camera("sim:rate,fps=3", SimCameraOptions{"rate", 3.0, "override"}, clock);
   camera.Open();
   EXPECT_DOUBLE_EQ(camera.format().fps, 3.0);
@@ -139,29 +139,29 @@ TEST(SimCameraTest, FpsOptionOverridesTheRegisteredRateAndIntrinsics) {
   Image image;
   for (int k = 0; k < 4; ++k) ASSERT_FALSE(camera.Grab(&image, 1s));
   // Frame 3 at 3/3 s exactly: rounding of 1/3 s does not accumulate.
-  EXPECT_EQ(image.timestamp, Duration(1s));
+  EXPECT_EQ(image.timestamp, common::Duration(1s));
   EXPECT_EQ(image.intrinsics_id, "override");
 }
 
 TEST(SimCameraTest, TimeoutShorterThanThePeriodAdvancesTheClockAndIsCounted) {
   ScopedSource s("slow", SmallFormat(50.0), PaintFrameId);
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   SimCamera camera("sim:slow", SimCameraOptions{"slow", 0.0, ""}, clock);
   camera.Open();
   ASSERT_FALSE(camera.Start());
   Image image;
   ASSERT_FALSE(camera.Grab(&image, 0ms));  // frame 0 is due at once
   EXPECT_EQ(camera.Grab(&image, 5ms), Errc::kTimeout);
-  EXPECT_EQ(clock.Now(), Duration(5ms));
+  EXPECT_EQ(clock.Now(), common::Duration(5ms));
   EXPECT_EQ(camera.counters().timeouts, 1u);
   ASSERT_FALSE(camera.Grab(&image, 100ms));
   EXPECT_EQ(image.frame_id, 1u);
-  EXPECT_EQ(image.timestamp, Duration(20ms));
+  EXPECT_EQ(image.timestamp, common::Duration(20ms));
 }
 
 TEST(SimCameraTest, ALateCallerGetsTheNewestFrameAndTheMissedOnesAreDropped) {
   ScopedSource s("late", SmallFormat(50.0), PaintFrameId);
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   SimCamera camera("sim:late", SimCameraOptions{"late", 0.0, ""}, clock);
   camera.Open();
   ASSERT_FALSE(camera.Start());
@@ -172,17 +172,17 @@ TEST(SimCameraTest, ALateCallerGetsTheNewestFrameAndTheMissedOnesAreDropped) {
   clock.Advance(105ms);  // now 125 ms: frames 2..6 were captured meanwhile
   ASSERT_FALSE(camera.Grab(&image, 1s));
   EXPECT_EQ(image.frame_id, 6u);
-  EXPECT_EQ(image.timestamp, Duration(120ms));
+  EXPECT_EQ(image.timestamp, common::Duration(120ms));
   EXPECT_EQ(camera.counters().dropped, 4u);
   ASSERT_FALSE(camera.Grab(&image, 1s));
   EXPECT_EQ(image.frame_id, 7u);
-  EXPECT_EQ(image.timestamp, Duration(140ms));
+  EXPECT_EQ(image.timestamp, common::Duration(140ms));
 }
 
 TEST(SimCameraTest, RenderIsGivenTheFrameIdAndClockTimeAndTheBufferIsReused) {
-  std::vector<std::pair<uint64_t, Duration>> calls;
+  std::vector<std::pair<uint64_t, common::Duration>> calls;
   ScopedSource s("args", CameraFormat{8, 2, PixelFormat::kBgr8, 10.0},
-                 [&](uint64_t id, Duration t, Image* image) {
+                 [&](uint64_t id, common::Duration t, Image* image) {
                    calls.emplace_back(id, t);
                    EXPECT_EQ(image->format, PixelFormat::kBgr8);
                    EXPECT_EQ(image->stride, 24u);
@@ -190,7 +190,7 @@ TEST(SimCameraTest, RenderIsGivenTheFrameIdAndClockTimeAndTheBufferIsReused) {
                    image->row(1)[23] = 0xAB;
                    return std::error_code();
                  });
-  SimulatedClock clock(SimulatedClock::Mode::kFreeRunning, Duration(7ms));
+  common::SimulatedClock clock(common::SimulatedClock::Mode::kFreeRunning, common::Duration(7ms));
   SimCamera camera("sim:args", SimCameraOptions{"args", 0.0, ""}, clock);
   camera.Open();
   ASSERT_FALSE(camera.Start());
@@ -201,17 +201,17 @@ TEST(SimCameraTest, RenderIsGivenTheFrameIdAndClockTimeAndTheBufferIsReused) {
   EXPECT_EQ(image.data.data(), buffer);
   EXPECT_EQ(image.data[47], 0xAB);
   ASSERT_EQ(calls.size(), 2u);
-  EXPECT_EQ(calls[0], std::make_pair(uint64_t{0}, Duration(7ms)));
-  EXPECT_EQ(calls[1], std::make_pair(uint64_t{1}, Duration(107ms)));
+  EXPECT_EQ(calls[0], std::make_pair(uint64_t{0}, common::Duration(7ms)));
+  EXPECT_EQ(calls[1], std::make_pair(uint64_t{1}, common::Duration(107ms)));
 }
 
 TEST(SimCameraTest, RenderErrorsAndResizingAreCountedAndTheStreamGoesOn) {
-  ScopedSource s("flaky", SmallFormat(), [](uint64_t id, Duration, Image* image) {
+  ScopedSource s("flaky", SmallFormat(), [](uint64_t id, common::Duration, Image* image) {
     if (id == 1) return std::error_code(Errc::kIo);
     if (id == 2) image->Resize(2, 2, PixelFormat::kMono8);
     return std::error_code();
   });
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   SimCamera camera("sim:flaky", SimCameraOptions{"flaky", 0.0, ""}, clock);
   camera.Open();
   ASSERT_FALSE(camera.Start());
@@ -228,7 +228,7 @@ TEST(SimCameraTest, RenderErrorsAndResizingAreCountedAndTheStreamGoesOn) {
 
 TEST(SimCameraTest, UnregisteringTheSourceFaultsTheCamera) {
   RegisterRenderSource("gone", SmallFormat(), PaintFrameId);
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   SimCamera camera("sim:gone", SimCameraOptions{"gone", 0.0, ""}, clock);
   camera.Open();
   ASSERT_FALSE(camera.Start());
@@ -236,13 +236,13 @@ TEST(SimCameraTest, UnregisteringTheSourceFaultsTheCamera) {
   ASSERT_FALSE(camera.Grab(&image, 1s));
   ASSERT_TRUE(UnregisterRenderSource("gone"));
   EXPECT_EQ(camera.Grab(&image, 1s), Errc::kClosed);
-  EXPECT_EQ(camera.lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(camera.lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(camera.Start(), Errc::kNotActive);
   // Open() from fault looks the source up again.
   EXPECT_THROW(camera.Open(), HalError);
   RegisterRenderSource("gone", SmallFormat(), PaintFrameId);
   camera.Open();
-  EXPECT_EQ(camera.lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(camera.lifecycle(), common::DeviceLifecycle::kConfigured);
   ASSERT_FALSE(camera.Start());
   EXPECT_FALSE(camera.Grab(&image, 1s));
   EXPECT_TRUE(UnregisterRenderSource("gone"));
@@ -252,13 +252,13 @@ TEST(SimCameraTest, UnregisterWaitsForARenderInProgress) {
   std::atomic<bool> rendering{false};
   std::atomic<bool> release{false};
   std::atomic<bool> finished{false};
-  RegisterRenderSource("busy", SmallFormat(), [&](uint64_t, Duration, Image*) {
+  RegisterRenderSource("busy", SmallFormat(), [&](uint64_t, common::Duration, Image*) {
     rendering = true;
     while (!release) std::this_thread::yield();
     finished = true;
     return std::error_code();
   });
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   SimCamera camera("sim:busy", SimCameraOptions{"busy", 0.0, ""}, clock);
   camera.Open();
   ASSERT_FALSE(camera.Start());
@@ -284,7 +284,7 @@ TEST(SimCameraTest, UnregisterWaitsForARenderInProgress) {
 
 TEST(SimCameraTest, DrivenClockBlocksGrabUntilTimeIsAdvanced) {
   ScopedSource s("driven", SmallFormat(50.0), PaintFrameId);
-  SimulatedClock clock(SimulatedClock::Mode::kDriven);
+  common::SimulatedClock clock(common::SimulatedClock::Mode::kDriven);
   SimCamera camera("sim:driven", SimCameraOptions{"driven", 0.0, ""}, clock);
   camera.Open();
   ASSERT_FALSE(camera.Start());
@@ -301,7 +301,7 @@ TEST(SimCameraTest, DrivenClockBlocksGrabUntilTimeIsAdvanced) {
   grabber.join();
   EXPECT_TRUE(done.load());
   EXPECT_EQ(image.frame_id, 1u);
-  EXPECT_EQ(image.timestamp, Duration(20ms));
+  EXPECT_EQ(image.timestamp, common::Duration(20ms));
 }
 
 }  // namespace

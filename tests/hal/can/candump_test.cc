@@ -275,7 +275,7 @@ TEST(CandumpFileTest, NamesFileAndLineOfEveryBadLine) {
   try {
     ReadCandumpFile(path);
     FAIL() << "expected ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     const std::string what = e.what();
     EXPECT_THAT(what, HasSubstr(path + ":3: "));
     EXPECT_THAT(what, ContainsRegex(":3: frame \"800#00\": id 0x800 exceeds 11 bits"));
@@ -294,7 +294,7 @@ TEST(CandumpFileTest, CapsTheListOfBadLines) {
   try {
     ReadCandumpFile(path);
     FAIL() << "expected ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     const std::string what = e.what();
     EXPECT_THAT(what, HasSubstr(path + ":20: "));
     EXPECT_THAT(what, ::testing::Not(HasSubstr(path + ":21: ")));
@@ -309,7 +309,7 @@ TEST(CandumpFileTest, MissingFileIsAConfigErrorNamingThePath) {
   try {
     ReadCandumpFile(path);
     FAIL() << "expected ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), ContainsRegex("kinevis_candump_does_not_exist.*: cannot open candump "
                                         "log: No such file or directory"));
   }
@@ -388,7 +388,7 @@ TEST(CandumpWriterTest, UncreatableFileIsAConfigError) {
   try {
     CandumpWriter writer(path);
     FAIL() << "expected ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), ContainsRegex("capture\\.log: cannot create candump log: "));
   }
 }

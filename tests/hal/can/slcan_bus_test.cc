@@ -155,12 +155,12 @@ TEST_F(SlcanBusTest, RefusesAnInvalidFrame) {
 
 TEST_F(SlcanBusTest, ReceivesFramesWithTheHostArrivalTime) {
   OpenBus();
-  const Duration before = SteadyClock::Instance().Now();
+  const common::Duration before = common::SteadyClock::Instance().Now();
   ASSERT_FALSE(peer_->Send(CanFrame::Standard(0x321, {0xDE, 0xAD})));
   ASSERT_FALSE(peer_->Send(CanFrame::Extended(0x1FFFFFFF, {0x01})));
   CanFrame got;
   ASSERT_FALSE(bus_->Receive(&got, kReceiveTimeout));
-  const Duration after = SteadyClock::Instance().Now();
+  const common::Duration after = common::SteadyClock::Instance().Now();
   EXPECT_EQ(got, CanFrame::Standard(0x321, {0xDE, 0xAD}));
   EXPECT_GE(got.timestamp, before);
   EXPECT_LE(got.timestamp, after);
@@ -278,10 +278,10 @@ TEST_F(SlcanBusTest, SilentAdapterThrowsWithinTheTimeout) {
 }
 
 TEST_F(SlcanBusTest, BadSpecsAndMissingDevicesThrow) {
-  EXPECT_THROW(SlcanBus::Open(ParseCanBackend("virtual:x")), ConfigError);
+  EXPECT_THROW(SlcanBus::Open(ParseCanBackend("virtual:x")), common::ConfigError);
   CanBackendSpec no_code = Spec();
   no_code.bitrate = 33333;
-  EXPECT_THROW(SlcanBus::Open(no_code), ConfigError);
+  EXPECT_THROW(SlcanBus::Open(no_code), common::ConfigError);
   try {
     SlcanBus::Open(ParseCanBackend("slcan:/dev/kinevis-no-such-adapter@115200"));
     FAIL() << "no HalError";

@@ -19,7 +19,7 @@
 #include <thread>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/common/error.h"
 #include "tests/utilities/subprocess.h"
 
@@ -32,7 +32,7 @@ using ::testing::ContainsRegex;
 
 using Bytes = std::vector<uint8_t>;
 
-Duration Now() { return SteadyClock::Instance().Now(); }
+common::Duration Now() { return common::SteadyClock::Instance().Now(); }
 
 // A SocketCanBus on one end of a SOCK_SEQPACKET socketpair; the test plays the kernel on the
 // other end, reading and writing struct can_frame records.
@@ -192,15 +192,15 @@ TEST_F(SocketpairBusTest, ReceivesStandardExtendedAndRemoteFrames) {
 
 TEST_F(SocketpairBusTest, TimestampsAreKernelReceptionTimesOnTheSteadyClock) {
   ASSERT_TRUE(bus_->features().timestamps);
-  const Duration before = Now();
+  const common::Duration before = Now();
   Inject(0x001, 0);
   std::this_thread::sleep_for(milliseconds(30));
   Inject(0x002, 0);
   std::this_thread::sleep_for(milliseconds(30));
-  const Duration read_start = Now();
+  const common::Duration read_start = Now();
   CanFrame first = MustReceive();
   CanFrame second = MustReceive();
-  const Duration after = Now();
+  const common::Duration after = Now();
   // Stamped when the records were written, not when they were read.
   EXPECT_GE(first.timestamp, before - milliseconds(1));
   EXPECT_GE(second.timestamp - first.timestamp, milliseconds(29));
@@ -210,7 +210,7 @@ TEST_F(SocketpairBusTest, TimestampsAreKernelReceptionTimesOnTheSteadyClock) {
 
 TEST_F(SocketpairBusTest, TimestampsNeverDecrease) {
   for (int i = 0; i < 200; ++i) Inject(static_cast<uint32_t>(i), 0);
-  Duration last{0};
+  common::Duration last{0};
   for (int i = 0; i < 200; ++i) {
     CanFrame f = MustReceive();
     ASSERT_EQ(f.id, static_cast<uint32_t>(i));
@@ -225,7 +225,7 @@ TEST_F(SocketpairBusTest, WithoutKernelTimestampsFramesAreStampedWhenRead) {
   ASSERT_EQ(::setsockopt(bus_->fd(), SOL_SOCKET, SO_TIMESTAMPNS, &off, sizeof off), 0);
   Inject(0x001, 0);
   std::this_thread::sleep_for(milliseconds(30));
-  const Duration read_start = Now();
+  const common::Duration read_start = Now();
   CanFrame f = MustReceive();
   EXPECT_GE(f.timestamp, read_start);
   EXPECT_LE(f.timestamp, Now());
@@ -331,7 +331,7 @@ TEST_F(SocketpairBusTest, DecodesEveryErrorFrameClass) {
   for (const ErrorFrameCase& c : cases) {
     SCOPED_TRACE(c.what);
     Connect({});
-    const Duration before = Now();
+    const common::Duration before = Now();
     InjectError(c.error_class, c.data);
     Inject(0x321, 1, {0x5A});  // error frames do not end the receive: this frame comes back
     EXPECT_EQ(MustReceive(), CanFrame::Standard(0x321, {0x5A}));
@@ -399,7 +399,7 @@ TEST_F(SocketpairBusTest, StateFollowsTheControllerThroughBusOffAndBack) {
 TEST_F(SocketpairBusTest, ErrorFramesAloneDoNotEndTheWait) {
   InjectError(CAN_ERR_ACK);
   CanFrame f;
-  const Duration start = Now();
+  const common::Duration start = Now();
   EXPECT_EQ(bus_->Receive(&f, milliseconds(50)), Errc::kTimeout);
   EXPECT_GE(Now() - start, milliseconds(50));
   ASSERT_EQ(TakeEvents().size(), 1u);
@@ -484,9 +484,9 @@ TEST_F(SocketpairBusTest, RejectsFiltersTheKernelCouldNotTake) {
 
 TEST_F(SocketpairBusTest, ReceiveTimesOutWithinTheDeadline) {
   CanFrame f;
-  Duration start = Now();
+  common::Duration start = Now();
   EXPECT_EQ(bus_->Receive(&f, milliseconds(50)), Errc::kTimeout);
-  Duration elapsed = Now() - start;
+  common::Duration elapsed = Now() - start;
   EXPECT_GE(elapsed, milliseconds(50));
   EXPECT_LT(elapsed, std::chrono::seconds(2));
 
@@ -509,7 +509,7 @@ TEST_F(SocketpairBusTest, PeerCloseIsClosedAfterTheQueuedFrames) {
   peer_ = -1;
   EXPECT_EQ(MustReceive().id, 0x001u);
   CanFrame f;
-  const Duration start = Now();
+  const common::Duration start = Now();
   EXPECT_EQ(bus_->Receive(&f, std::chrono::seconds(5)), Errc::kClosed);
   EXPECT_LT(Now() - start, std::chrono::seconds(2));
   EXPECT_EQ(bus_->Send(CanFrame::Standard(0x001)), Errc::kClosed);
@@ -522,7 +522,7 @@ TEST_F(SocketpairBusTest, PeerCloseWakesAWaitingReceive) {
     ::close(peer_);
   });
   CanFrame f;
-  const Duration start = Now();
+  const common::Duration start = Now();
   const std::error_code ec = bus_->Receive(&f, std::chrono::seconds(5));
   closer.join();
   peer_ = -1;
@@ -550,9 +550,9 @@ TEST_F(SocketpairBusTest, FullQueueIsAnOverflowAfterTheTxTimeout) {
   // Nobody reads the peer: the socket's send buffer fills up.
   std::error_code ec;
   uint64_t sent = 0;
-  Duration failed_after{0};
+  common::Duration failed_after{0};
   for (int i = 0; i < 100000 && !ec; ++i) {
-    const Duration start = Now();
+    const common::Duration start = Now();
     ec = bus_->Send(CanFrame::Standard(0x100, {static_cast<uint8_t>(i)}));
     if (!ec) {
       ++sent;
@@ -582,9 +582,9 @@ TEST_F(SocketpairBusTest, FullQueueIsAnOverflowAfterTheTxTimeout) {
     char buffer[16];
     while (::recv(peer_, buffer, sizeof buffer, MSG_DONTWAIT) > 0) ++drained;
   });
-  const Duration start = Now();
+  const common::Duration start = Now();
   ec = bus_->Send(CanFrame::Standard(0x201));
-  const Duration waited = Now() - start;
+  const common::Duration waited = Now() - start;
   reader.join();
   EXPECT_FALSE(ec) << ec.message();
   EXPECT_GT(drained.load(), 0);
@@ -643,7 +643,7 @@ TEST(SocketCanBusSetupTest, BadOptionsAreAConfigErrorAndTheDescriptorIsClosed) {
   try {
     SocketCanBus::FromDescriptor(fds[0], "test:options", options);
     FAIL() << "expected ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), ContainsRegex("test:options: .*tx_timeout 5000000 us must be"));
   }
   EXPECT_EQ(::fcntl(fds[0], F_GETFD), -1);  // owned, and closed
@@ -652,7 +652,7 @@ TEST(SocketCanBusSetupTest, BadOptionsAreAConfigErrorAndTheDescriptorIsClosed) {
 
 TEST(SocketCanBusSetupTest, OpenRejectsBadInterfaceNames) {
   for (const char* iface : {"", "a_name_longer_than15", "can 0", "can/0"}) {
-    EXPECT_THROW(SocketCanBus::Open(iface, "socketcan:x"), ConfigError) << iface;
+    EXPECT_THROW(SocketCanBus::Open(iface, "socketcan:x"), common::ConfigError) << iface;
   }
 }
 
@@ -738,7 +738,7 @@ TEST(SocketCanVcanTest, ExchangesFramesThroughTheKernel) {
   const std::vector<CanFrame> frames = {CanFrame::Standard(0x123, {1, 2, 3}),
                                         CanFrame::Extended(0x12345678, {8, 7, 6, 5, 4, 3, 2, 1}),
                                         rtr};
-  const Duration before = Now();
+  const common::Duration before = Now();
   for (const CanFrame& frame : frames) ASSERT_FALSE(a->Send(frame));
   for (const CanFrame& frame : frames) {
     CanFrame got;

@@ -66,7 +66,7 @@ TEST(VirtualCanBusTest, RegistrySharesNetworksByName) {
   try {
     VirtualCanNetwork::Get("shared-by-name", fast);
     FAIL() << "expected ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), ContainsRegex("already exists with bitrate 0, asked for 1000000"));
   }
 }
@@ -78,7 +78,7 @@ TEST(VirtualCanBusTest, BadOptionsAreRejected) {
   try {
     VirtualCanNetwork("bad", o);
     FAIL();
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), ContainsRegex("\"bad\".*bitrate 5.*rx_queue_capacity"));
   }
 }
@@ -135,14 +135,15 @@ class TimedBusTest : public ::testing::Test {
     o.clock = &clock_;
     net_ = MakeNetwork(o);
   }
-  SimulatedClock clock_;
+  common::SimulatedClock clock_;
   std::shared_ptr<VirtualCanNetwork> net_;
 };
 
 TEST_F(TimedBusTest, FrameArrivesAfterItsWireTime) {
   auto a = net_->Connect(), b = net_->Connect();
   CanFrame f = CanFrame::Standard(0x123, {1, 2, 3, 4, 5, 6, 7, 8});
-  const Duration wire = Duration(CanFrameWireBits(f) * 2000LL);  // 2 us per bit at 500 kbit/s
+  const common::Duration wire =
+      common::Duration(CanFrameWireBits(f) * 2000LL);  // 2 us per bit at 500 kbit/s
   ASSERT_FALSE(a->Send(f));
   CanFrame got;
   clock_.Advance(wire - 1ns);

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "common/units.h"
 #include "hal/can/virtual_can_bus.h"
 #include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
@@ -28,18 +29,17 @@ using ::testing::HasSubstr;
 using ::testing::MatchesRegex;
 using S = Cia402State;
 
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kCountsPerRad = 65536.0 / (2 * kPi);
+constexpr double kCountsPerRad = 65536.0 / (2 * common::kPi);
 
 std::string TestName() { return ::testing::UnitTest::GetInstance()->current_test_info()->name(); }
 
 // A clock whose time passes only when the code under test sleeps on it; while it passes, the
 // simulated drives are serviced, in steps no longer than `step`.
-class ServicedClock final : public Clock {
+class ServicedClock final : public common::Clock {
  public:
-  explicit ServicedClock(Duration step = 50us) : step_(step) {}
-  Duration Now() const override { return time_.Now(); }
-  void SleepUntil(Duration deadline) override {
+  explicit ServicedClock(common::Duration step = 50us) : step_(step) {}
+  common::Duration Now() const override { return time_.Now(); }
+  void SleepUntil(common::Duration deadline) override {
     kinevis::testing::UncountedAllocations not_counted;  // the simulators are not under test
     while (time_.Now() < deadline) {
       time_.AdvanceTo(std::min(deadline, time_.Now() + step_));
@@ -49,8 +49,8 @@ class ServicedClock final : public Clock {
   void AddService(std::function<void()> service) { services_.push_back(std::move(service)); }
 
  private:
-  SimulatedClock time_;
-  Duration step_;
+  common::SimulatedClock time_;
+  common::Duration step_;
   std::vector<std::function<void()>> services_;
 };
 
@@ -187,17 +187,19 @@ TEST_F(CanopenMasterTest, SixDrivesTrackATrajectoryInCspAtOneKilohertz) {
   MakeBus(6);
   master_->ConfigureAll();
   ASSERT_FALSE(master_->EnableAll(1000ms));
-  for (Cia402CanDrive* d : drives_) ASSERT_EQ(d->lifecycle(), DeviceLifecycle::kActive);
+  for (Cia402CanDrive* d : drives_) ASSERT_EQ(d->lifecycle(), common::DeviceLifecycle::kActive);
   const CanopenMasterCounters before = master_->counters();
   // q_i(t) = a_i (1 - cos(2 pi f t)): from rest, 1 Hz, amplitudes 0.1 .. 0.6 rad.
-  auto q = [](int i, double t) { return 0.1 * (i + 1) * (1 - std::cos(2 * kPi * 1.0 * t)); };
-  const Duration t0 = clock_.Now();
+  auto q = [](int i, double t) {
+    return 0.1 * (i + 1) * (1 - std::cos(2 * common::kPi * 1.0 * t));
+  };
+  const common::Duration t0 = clock_.Now();
   constexpr int kCycles = 2000;
   double worst = 0;
   for (int k = 1; k <= kCycles; ++k) {
     const double t = k * 1e-3;
     for (int i = 0; i < 6; ++i) ASSERT_FALSE(drives_[i]->SetTargetPosition(q(i, t)));
-    clock_.SleepUntil(t0 + k * Duration(1ms));
+    clock_.SleepUntil(t0 + k * common::Duration(1ms));
     ASSERT_FALSE(master_->Cycle()) << "cycle " << k;
     if (k < 10) continue;
     for (int i = 0; i < 6; ++i) {
@@ -213,7 +215,7 @@ TEST_F(CanopenMasterTest, SixDrivesTrackATrajectoryInCspAtOneKilohertz) {
   EXPECT_EQ(after.missing_tpdos, 0u);
   EXPECT_EQ(after.late_tpdos, before.late_tpdos);
   for (int i = 0; i < 6; ++i) {
-    EXPECT_EQ(drives_[i]->lifecycle(), DeviceLifecycle::kActive);
+    EXPECT_EQ(drives_[i]->lifecycle(), common::DeviceLifecycle::kActive);
     EXPECT_EQ(sims_[i]->statistics().syncs >= static_cast<uint64_t>(kCycles), true);
     EXPECT_NEAR(drives_[i]->status().position, q(i, kCycles * 1e-3), 20.0 / kCountsPerRad);
   }
@@ -227,13 +229,13 @@ TEST_F(CanopenMasterTest, SteadyStateCycleDoesNotAllocate) {
   master_->ConfigureAll();
   ASSERT_FALSE(master_->EnableAll(1000ms));
   Cycles(50);  // warm-up: queues and buffers reach their working size
-  const Duration t0 = clock_.Now();
+  const common::Duration t0 = clock_.Now();
   long allocations = 0;
   for (int k = 1; k <= 1000; ++k) {
-    const double target = 0.2 * std::sin(2 * kPi * k * 1e-3);
+    const double target = 0.2 * std::sin(2 * common::kPi * k * 1e-3);
     {
       kinevis::testing::UncountedAllocations not_counted;  // the simulators are not under test
-      clock_.SleepUntil(t0 + k * Duration(1ms));
+      clock_.SleepUntil(t0 + k * common::Duration(1ms));
     }
     const long before = kinevis::testing::ThreadAllocations();
     for (Cia402CanDrive* d : drives_) (void)d->SetTargetPosition(target);
@@ -256,24 +258,24 @@ TEST_F(CanopenMasterTest, HeartbeatLossFaultsThatDriveAndQuickStopsTheOthers) {
   ASSERT_FALSE(master_->EnableAll(1000ms));
   Cycles(50);
   sims_[1]->StopHeartbeat(true);
-  const Duration stopped = clock_.Now();
-  Duration detected{0};
+  const common::Duration stopped = clock_.Now();
+  common::Duration detected{0};
   std::error_code ec;
-  for (int i = 0; i < 100 && drives_[1]->lifecycle() != DeviceLifecycle::kFault; ++i) {
+  for (int i = 0; i < 100 && drives_[1]->lifecycle() != common::DeviceLifecycle::kFault; ++i) {
     clock_.SleepFor(1ms);
     ec = master_->Cycle();
     detected = clock_.Now();
   }
-  ASSERT_EQ(drives_[1]->lifecycle(), DeviceLifecycle::kFault);
+  ASSERT_EQ(drives_[1]->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(ec, Errc::kTimeout);
-  EXPECT_LE(detected - stopped, Duration(30ms + 1ms));  // consumer time + one cycle
+  EXPECT_LE(detected - stopped, common::Duration(30ms + 1ms));  // consumer time + one cycle
   EXPECT_EQ(drives_[1]->status().fault_source, DriveFaultSource::kLink);
   EXPECT_THAT(drives_[1]->last_error_text(),
               MatchesRegex("leg2 \\(virtual:hexapod node 2\\): link lost: heartbeat lost: .*"));
   EXPECT_EQ(master_->counters().heartbeat_losses, 1u);
   // The others were quick-stopped by the bus and named the cause.
   for (int i : {0, 2}) {
-    EXPECT_EQ(drives_[i]->lifecycle(), DeviceLifecycle::kConfigured);
+    EXPECT_EQ(drives_[i]->lifecycle(), common::DeviceLifecycle::kConfigured);
     EXPECT_THAT(drives_[i]->last_error_text(),
                 HasSubstr("quick stop: leg2 (virtual:hexapod node 2) faulted"));
   }
@@ -293,8 +295,8 @@ TEST_F(CanopenMasterTest, WithoutTheQuickStopPolicyTheOthersKeepRunning) {
   ASSERT_FALSE(master_->EnableAll(1000ms));
   sims_[0]->StopHeartbeat(true);
   Cycles(60);
-  EXPECT_EQ(drives_[0]->lifecycle(), DeviceLifecycle::kFault);
-  EXPECT_EQ(drives_[1]->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(drives_[0]->lifecycle(), common::DeviceLifecycle::kFault);
+  EXPECT_EQ(drives_[1]->lifecycle(), common::DeviceLifecycle::kActive);
   EXPECT_EQ(sims_[1]->device().state(), S::kOperationEnabled);
 }
 
@@ -309,7 +311,7 @@ TEST_F(CanopenMasterTest, EmcyFaultsTheDriveWithTheErrorText) {
   emcy.error_register = 0x05;
   ASSERT_FALSE(peer_->Send(EncodeEmcy(emcy)));
   Cycles(1);
-  EXPECT_EQ(drives_[1]->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drives_[1]->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(drives_[1]->status().fault_source, DriveFaultSource::kDevice);
   EXPECT_EQ(drives_[1]->status().error_code, 0x3210);
   EXPECT_THAT(drives_[1]->last_error_text(),
@@ -321,17 +323,17 @@ TEST_F(CanopenMasterTest, EmcyFaultsTheDriveWithTheErrorText) {
   // Device fault: held with "disable voltage"; the drive that was fine is quick-stopped.
   EXPECT_EQ(drives_[1]->last_controlword(), 0x00);
   EXPECT_EQ(sims_[1]->device().state(), S::kSwitchOnDisabled);
-  EXPECT_EQ(drives_[0]->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(drives_[0]->lifecycle(), common::DeviceLifecycle::kConfigured);
   // An "error reset" EMCY (code 0) is no fault.
   ASSERT_FALSE(master_->EnableAll(1000ms, /*reset_fault=*/true));
   emcy.error_code = 0;
   ASSERT_FALSE(peer_->Send(EncodeEmcy(emcy)));
   Cycles(2);
-  EXPECT_EQ(drives_[1]->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(drives_[1]->lifecycle(), common::DeviceLifecycle::kActive);
   // A real fault of the simulator: first the statusword, then its EMCY.
   sims_[0]->RaiseFault(0x7121);
   Cycles(40);
-  EXPECT_EQ(drives_[0]->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drives_[0]->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_THAT(drives_[0]->last_error_text(),
               MatchesRegex("leg1 \\(virtual:hexapod node 1\\): EMCY 0x7121 \\(motor blocked\\), "
                            "error register 0x21"));
@@ -345,17 +347,17 @@ TEST_F(CanopenMasterTest, MissingTpdoIsATimeoutOfThatCycleOnly) {
   Cycles(5);
   sims_[1]->DropNextReplies(1);  // TPDO1 of the next SYNC
   clock_.SleepFor(1ms);
-  const Duration start = clock_.Now();
+  const common::Duration start = clock_.Now();
   EXPECT_EQ(master_->Cycle(), Errc::kTimeout);
   // The cycle waited cycle_timeout (800 us) for it, not longer.
-  EXPECT_GE(clock_.Now() - start, Duration(800us));
-  EXPECT_LE(clock_.Now() - start, Duration(900us));
+  EXPECT_GE(clock_.Now() - start, common::Duration(800us));
+  EXPECT_LE(clock_.Now() - start, common::Duration(900us));
   EXPECT_EQ(master_->counters().missing_tpdos, 1u);
   EXPECT_EQ(drives_[1]->counters().timeouts, 1u);
   EXPECT_EQ(drives_[0]->counters().timeouts, 0u);
   clock_.SleepFor(1ms);
   EXPECT_FALSE(master_->Cycle());
-  EXPECT_EQ(drives_[1]->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(drives_[1]->lifecycle(), common::DeviceLifecycle::kActive);
 }
 
 TEST_F(CanopenMasterTest, BusOffIsALinkErrorAndTheDrivesEndSafe) {
@@ -374,7 +376,7 @@ TEST_F(CanopenMasterTest, BusOffIsALinkErrorAndTheDrivesEndSafe) {
   EXPECT_GE(master_->counters().send_errors, 3u);
   EXPECT_GE(master_->counters().bus_error_events, 1u);
   for (Cia402CanDrive* d : drives_) {
-    EXPECT_EQ(d->lifecycle(), DeviceLifecycle::kFault);
+    EXPECT_EQ(d->lifecycle(), common::DeviceLifecycle::kFault);
     EXPECT_EQ(d->status().fault_source, DriveFaultSource::kLink);
   }
   host_node_->Recover();
@@ -394,7 +396,7 @@ TEST_F(CanopenMasterTest, FramesOfNoConfiguredNodeAreCountedAndIgnored) {
   ASSERT_FALSE(peer_->Send(CanFrame::Extended(0x18FF0001, {1})));
   Cycles(1);
   EXPECT_GE(master_->counters().unknown_frames, 3u);
-  EXPECT_EQ(drives_[0]->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(drives_[0]->lifecycle(), common::DeviceLifecycle::kConfigured);
 }
 
 TEST_F(CanopenMasterTest, ShortTpdoIsAProtocolErrorNotData) {
@@ -416,7 +418,7 @@ TEST(CanopenMasterConfigTest, InvalidOptionsAreAConfigError) {
   try {
     CanopenMaster master(network->Connect("virtual:master-config"), options);
     FAIL() << "no ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), MatchesRegex("CANopen master on virtual:master-config: cycle_period 0 "
                                        "us must be > 0; sdo.timeout 0 ms must be > 0"));
   }

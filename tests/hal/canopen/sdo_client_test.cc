@@ -289,11 +289,11 @@ TEST(SdoAbortCategoryTest, EveryAbortCodeOfTheTableHasItsText) {
 
 // A clock whose time passes only when the code under test sleeps on it; while it passes, the
 // simulated devices are serviced, in steps no longer than `step`.
-class ServicedClock final : public Clock {
+class ServicedClock final : public common::Clock {
  public:
-  explicit ServicedClock(Duration step = 50us) : step_(step) {}
-  Duration Now() const override { return time_.Now(); }
-  void SleepUntil(Duration deadline) override {
+  explicit ServicedClock(common::Duration step = 50us) : step_(step) {}
+  common::Duration Now() const override { return time_.Now(); }
+  void SleepUntil(common::Duration deadline) override {
     while (time_.Now() < deadline) {
       time_.AdvanceTo(std::min(deadline, time_.Now() + step_));
       for (const auto& service : services_) service();
@@ -302,8 +302,8 @@ class ServicedClock final : public Clock {
   void AddService(std::function<void()> service) { services_.push_back(std::move(service)); }
 
  private:
-  SimulatedClock time_;
-  Duration step_;
+  common::SimulatedClock time_;
+  common::Duration step_;
   std::vector<std::function<void()>> services_;
 };
 
@@ -525,13 +525,13 @@ TEST_F(SdoClientTest, NoAnswerTimesOutWithinTheBoundAndSendsAnAbort) {
   SdoClientOptions options;
   options.timeout = 100ms;
   client_ = std::make_unique<SdoClient>(host_.get(), kNode, &clock_, "axis", options);
-  const Duration start = clock_.Now();
+  const common::Duration start = clock_.Now();
   uint16_t value = 0;
   const std::error_code ec = client_->UploadValue<uint16_t>(0x6041, 0, &value);
-  const Duration elapsed = clock_.Now() - start;
+  const common::Duration elapsed = clock_.Now() - start;
   EXPECT_EQ(ec, make_error_code(Errc::kTimeout));
-  EXPECT_GE(elapsed, Duration(100ms));
-  EXPECT_LE(elapsed, Duration(101ms));
+  EXPECT_GE(elapsed, common::Duration(100ms));
+  EXPECT_LE(elapsed, common::Duration(101ms));
   EXPECT_THAT(client_->last_error_text(),
               MatchesRegex("axis: SDO upload 0x6041:00 failed: timed out after 100 ms: no "
                            "response to the initiate request \\(abort 0x05040000 sent\\)"));
@@ -541,9 +541,9 @@ TEST_F(SdoClientTest, NoAnswerTimesOutWithinTheBoundAndSendsAnAbort) {
   EXPECT_EQ(client_->counters().aborts_sent, 1u);
   // The per-request timeout overrides the default.
   server_->drop_next = 1;
-  const Duration start2 = clock_.Now();
+  const common::Duration start2 = clock_.Now();
   EXPECT_EQ(client_->UploadValue<uint16_t>(0x6041, 0, &value, 20ms), Errc::kTimeout);
-  EXPECT_LE(clock_.Now() - start2, Duration(21ms));
+  EXPECT_LE(clock_.Now() - start2, common::Duration(21ms));
   // And the server answers again.
   server_->od[{0x6041, 0}] = {0x37, 0x02};
   EXPECT_FALSE(client_->UploadValue<uint16_t>(0x6041, 0, &value));
@@ -602,9 +602,9 @@ TEST_F(SdoClientTest, RequestRefusedByTheBusIsALinkError) {
 // other frame, as the CANopen master does.
 class RecordingSource final : public CanFrameSource {
  public:
-  RecordingSource(CanBus* bus, Clock* clock, SdoClient** client)
+  RecordingSource(CanBus* bus, common::Clock* clock, SdoClient** client)
       : bus_(bus), clock_(clock), client_(client) {}
-  void PumpUntil(Duration deadline, const std::function<bool()>& done) override {
+  void PumpUntil(common::Duration deadline, const std::function<bool()>& done) override {
     ++pumps;
     while (!done()) {
       CanFrame f;
@@ -617,7 +617,7 @@ class RecordingSource final : public CanFrameSource {
 
  private:
   CanBus* bus_;
-  Clock* clock_;
+  common::Clock* clock_;
   SdoClient** client_;
 };
 
@@ -645,17 +645,17 @@ TEST_F(SdoClientTest, WithAFrameSourceOtherTrafficReachesTheSource) {
 
 TEST(SdoClientConfigTest, BadNodeOrTimeoutIsAConfigError) {
   auto bus = VirtualCanNetwork::Get("sdo-config", {})->Connect();
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   try {
     SdoClientOptions options;
     options.timeout = 0ms;
     SdoClient client(bus.get(), 0, &clock, "x", options);
     FAIL() << "no ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), MatchesRegex("SDO client x: node 0 is not in 1..127; timeout 0 ms "
                                        "must be > 0"));
   }
-  EXPECT_THROW(SdoClient(bus.get(), 128, &clock, "x"), ConfigError);
+  EXPECT_THROW(SdoClient(bus.get(), 128, &clock, "x"), common::ConfigError);
 }
 
 // Real time: the client blocks in Receive() while a server thread answers.
@@ -672,7 +672,7 @@ TEST(SdoClientRealTimeTest, StandAloneClientReadsTheBusItself) {
       std::this_thread::sleep_for(200us);
     }
   });
-  SdoClient client(host.get(), 9, &SteadyClock::Instance(), "rt");
+  SdoClient client(host.get(), 9, &common::SteadyClock::Instance(), "rt");
   uint32_t vendor = 0;
   const std::error_code ec = client.UploadValue<uint32_t>(0x1018, 1, &vendor, 5000ms);
   stop = true;
@@ -745,11 +745,11 @@ TEST_F(SdoClientSimTest, SimulatorAbortsComeWithTheirCodes) {
 TEST_F(SdoClientSimTest, DroppedReplyTimesOutWithinTheBound) {
   sim_->Service();
   sim_->DropNextReplies(1);
-  const Duration start = clock_.Now();
+  const common::Duration start = clock_.Now();
   uint32_t value = 0;
   EXPECT_EQ(client_->UploadValue(kIdentity, 1, &value), Errc::kTimeout);
-  EXPECT_GE(clock_.Now() - start, Duration(100ms));
-  EXPECT_LE(clock_.Now() - start, Duration(101ms));
+  EXPECT_GE(clock_.Now() - start, common::Duration(100ms));
+  EXPECT_LE(clock_.Now() - start, common::Duration(101ms));
   EXPECT_THAT(client_->last_error_text(), HasSubstr("timed out after 100 ms"));
   EXPECT_FALSE(client_->UploadValue(kIdentity, 1, &value));  // the server recovered
 }
@@ -773,13 +773,13 @@ TEST(SdoClientSlcanTest, TransfersOverSlcanToTheSimulator) {
   adapter.Start();
   CanopenDriveSim::Options o;
   o.node = 3;
-  CanopenDriveSim sim(sim_node.get(), &SteadyClock::Instance(), o);
+  CanopenDriveSim sim(sim_node.get(), &common::SteadyClock::Instance(), o);
   sim.Start();
   auto bus =
       SlcanBus::Open(ParseCanBackend("slcan:" + pty.slave_path() + "@115200,bitrate=500000"));
   SdoClientOptions so;
   so.timeout = 2000ms;  // generous: real time on a loaded machine
-  SdoClient client(bus.get(), 3, &SteadyClock::Instance(), "slcan-drive", so);
+  SdoClient client(bus.get(), 3, &common::SteadyClock::Instance(), "slcan-drive", so);
   std::string name;
   ASSERT_FALSE(client.UploadString(0x1008, 0, &name)) << client.last_error_text();
   EXPECT_EQ(name, "kinevis simulated drive");

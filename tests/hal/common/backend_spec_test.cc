@@ -15,7 +15,7 @@ template <typename Fn>
 std::string ConfigErrorOf(Fn fn) {
   try {
     fn();
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     return e.what();
   }
   ADD_FAILURE() << "no ConfigError thrown";
@@ -133,7 +133,7 @@ TEST(BackendSpecTest, BadValues) {
 
 TEST(BackendSpecTest, SchemeOf) {
   EXPECT_EQ(BackendScheme("modbus-rtu:/dev/x"), "modbus-rtu");
-  EXPECT_THROW(BackendScheme(":x"), ConfigError);
+  EXPECT_THROW(BackendScheme(":x"), common::ConfigError);
 }
 
 }  // namespace

@@ -11,6 +11,7 @@
 #include <thread>
 #include <vector>
 
+#include "common/units.h"
 #include "hal/can/can_bus_factory.h"
 #include "hal/can/slcan_bus.h"
 #include "hal/can/virtual_can_bus.h"
@@ -33,20 +34,19 @@ using ::testing::MatchesRegex;
 using S = Cia402State;
 using C = Cia402Command;
 
-constexpr double kPi = 3.14159265358979323846;
 // 2^16 counts per revolution.
-constexpr double kCountsPerRad = 65536.0 / (2 * kPi);
+constexpr double kCountsPerRad = 65536.0 / (2 * common::kPi);
 
 std::string TestName() { return ::testing::UnitTest::GetInstance()->current_test_info()->name(); }
 
 // A clock whose time passes only when the code under test sleeps on it; while it passes, the
 // simulated drives are serviced, in steps no longer than `step`. So the host, the bus and the
 // simulators run deterministically on one thread.
-class ServicedClock final : public Clock {
+class ServicedClock final : public common::Clock {
  public:
-  explicit ServicedClock(Duration step = 50us) : step_(step) {}
-  Duration Now() const override { return time_.Now(); }
-  void SleepUntil(Duration deadline) override {
+  explicit ServicedClock(common::Duration step = 50us) : step_(step) {}
+  common::Duration Now() const override { return time_.Now(); }
+  void SleepUntil(common::Duration deadline) override {
     while (time_.Now() < deadline) {
       time_.AdvanceTo(std::min(deadline, time_.Now() + step_));
       for (const auto& service : services_) service();
@@ -55,8 +55,8 @@ class ServicedClock final : public Clock {
   void AddService(std::function<void()> service) { services_.push_back(std::move(service)); }
 
  private:
-  SimulatedClock time_;
-  Duration step_;
+  common::SimulatedClock time_;
+  common::Duration step_;
   std::vector<std::function<void()>> services_;
 };
 
@@ -159,7 +159,7 @@ class CanDriveTest : public ::testing::Test {
 
 TEST_F(CanDriveTest, ConfigureReadsTheIdentityAndLeavesTheDriveConfigured) {
   Cia402CanDrive* drive = ConfiguredDrive(3);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_EQ(drive->name(), "axis3 (virtual:" + TestName() + " node 3)");
   const DriveIdentity& id = drive->identity();
   EXPECT_EQ(id.device_type, 0x00020192u);
@@ -218,7 +218,7 @@ TEST_F(CanDriveTest, EnableWalksTheTransitionsShutdownSwitchOnEnableOperation) {
   Cia402CanDrive* drive = ConfiguredDrive();
   ClearSniffer();
   ASSERT_FALSE(drive->Enable(500ms)) << drive->last_error_text();
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kActive);
   EXPECT_EQ(drive->status().state, S::kOperationEnabled);
   EXPECT_EQ(sims_[0]->device().state(), S::kOperationEnabled);
   EXPECT_EQ(ControlwordChanges(1), (std::vector<uint16_t>{0x06, 0x07, 0x0F}));
@@ -229,7 +229,7 @@ TEST_F(CanDriveTest, EnableWalksTheTransitionsShutdownSwitchOnEnableOperation) {
 TEST_F(CanDriveTest, CommandsAreRefusedUnlessActive) {
   AddSim(SimOptions(1));
   Cia402CanDrive* drive = Master().AddDrive(DriveConfig(1));
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kUnconfigured);
   EXPECT_EQ(drive->Enable(100ms), Errc::kNotActive);
   EXPECT_THAT(drive->last_error_text(), MatchesRegex("axis1 \\(.* node 1\\): enable refused: "
                                                      "not configured"));
@@ -251,7 +251,7 @@ TEST_F(CanDriveTest, CommandsAreRefusedUnlessActive) {
 
 // Drives the simulated drive of `drive` into `state` through the host.
 void Reach(Cia402CanDrive* drive, CanopenDriveSim* sim, S state) {
-  if (drive->lifecycle() == DeviceLifecycle::kFault || drive->status().state == S::kFault) {
+  if (drive->lifecycle() == common::DeviceLifecycle::kFault || drive->status().state == S::kFault) {
     ASSERT_FALSE(drive->FaultReset()) << drive->last_error_text();
   }
   switch (state) {
@@ -314,8 +314,9 @@ TEST_F(CanDriveTest, EveryTransitionTheHostCanCommandLeadsWhereTheTableSays) {
     EXPECT_EQ(sim->device().state(), row.to);
     EXPECT_EQ(drive->status().state, row.to);
     EXPECT_GT(sim->statistics().rpdos, rpdos);  // the command went by RPDO
-    EXPECT_EQ(drive->lifecycle(), row.to == S::kOperationEnabled ? DeviceLifecycle::kActive
-                                                                 : DeviceLifecycle::kConfigured);
+    EXPECT_EQ(drive->lifecycle(), row.to == S::kOperationEnabled
+                                      ? common::DeviceLifecycle::kActive
+                                      : common::DeviceLifecycle::kConfigured);
     ++rows;
   }
   EXPECT_EQ(rows, 18);
@@ -326,7 +327,7 @@ TEST_F(CanDriveTest, QuickStopWithOptionCodeTwoEndsSwitchOnDisabled) {
   ASSERT_FALSE(drive->Enable(500ms));
   ASSERT_FALSE(drive->SetTargetVelocity(0.0));
   ASSERT_FALSE(drive->QuickStop()) << drive->last_error_text();
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kConfigured);
   RunCycles(20);
   // Transition 12 (automatic): the quick stop completed, the drive disabled itself.
   EXPECT_EQ(sims_[0]->device().state(), S::kSwitchOnDisabled);
@@ -340,7 +341,7 @@ TEST_F(CanDriveTest, DeviceFaultIsReportedWithNameCodeAndTextAndTheDriveStaysOff
   ASSERT_FALSE(drive->Enable(500ms));
   sims_[0]->RaiseFault(0x2310);
   RunCycles(30);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   const DriveStatus s = drive->status();
   EXPECT_EQ(s.fault_source, DriveFaultSource::kDevice);
   EXPECT_EQ(s.state, S::kFault);
@@ -364,11 +365,11 @@ TEST_F(CanDriveTest, FaultResetIsARisingEdgeOfBit7) {
   Cia402CanDrive* drive = ConfiguredDrive();
   sims_[0]->RaiseFault(0x4310);
   RunCycles(30);
-  ASSERT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  ASSERT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(drive->last_controlword(), 0x00);  // in fault: bit 7 low ...
   ClearSniffer();
   ASSERT_FALSE(drive->FaultReset()) << drive->last_error_text();
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_EQ(sims_[0]->device().state(), S::kSwitchOnDisabled);
   const std::vector<uint16_t> words = ControlwordChanges(1);
   ASSERT_GE(words.size(), 1u);
@@ -381,16 +382,16 @@ TEST_F(CanDriveTest, FaultThatPersistsIsNotResetAndEnableTimesOutInBound) {
   ASSERT_FALSE(drive->Enable(500ms));
   sims_[0]->RaiseFault(0x5530);
   RunCycles(30);
-  ASSERT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  ASSERT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   // The cause persists: the drive faults again as soon as a reset clears it.
   clock_.AddService([this] {
     if (sims_[0]->device().state() == S::kSwitchOnDisabled) sims_[0]->RaiseFault(0x5530);
   });
-  const Duration start = clock_.Now();
+  const common::Duration start = clock_.Now();
   const std::error_code ec = drive->Enable(300ms, /*reset_fault=*/true);
   EXPECT_EQ(ec, Errc::kDeviceFault);
-  EXPECT_LE(clock_.Now() - start, Duration(350ms));
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_LE(clock_.Now() - start, common::Duration(350ms));
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_THAT(drive->last_error_text(), ContainsRegex("axis1 .*0x5530"));
   EXPECT_NE(sims_[0]->device().state(), S::kOperationEnabled);
 }
@@ -403,7 +404,7 @@ TEST_F(CanDriveTest, FollowingErrorFaultsTheDrive) {
   // A step of 2 rad in CSP: the axis cannot follow within 500 counts.
   ASSERT_FALSE(drive->SetTargetPosition(2.0));
   RunCycles(60);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(drive->status().error_code, 0x8611);
   EXPECT_EQ(drive->status().fault_source, DriveFaultSource::kDevice);
   EXPECT_THAT(drive->last_error_text(), ContainsRegex("^axis1 .*0x8611 \\(following error\\)"));
@@ -518,7 +519,7 @@ TEST_F(CanDriveTest, UnsupportedModeIsRefused) {
                                         "\\(8\\), cyclic synchronous velocity \\(9\\), cyclic "
                                         "synchronous torque \\(10\\)\\)"));
   }
-  EXPECT_EQ(other->lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(other->lifecycle(), common::DeviceLifecycle::kUnconfigured);
 }
 
 TEST_F(CanDriveTest, DroppedSdoRepliesFailConfigureWithATimeoutInBound) {
@@ -529,7 +530,7 @@ TEST_F(CanDriveTest, DroppedSdoRepliesFailConfigureWithATimeoutInBound) {
   Cia402CanDrive* drive = Master().AddDrive(DriveConfig(1));
   sim->Service();  // boot
   sim->DropNextReplies(1);
-  const Duration start = clock_.Now();
+  const common::Duration start = clock_.Now();
   try {
     drive->Configure();
     FAIL() << "no HalError";
@@ -540,12 +541,12 @@ TEST_F(CanDriveTest, DroppedSdoRepliesFailConfigureWithATimeoutInBound) {
                                        "request \\(abort 0x05040000 sent\\)"));
     EXPECT_EQ(e.code(), Errc::kTimeout);
   }
-  EXPECT_LE(clock_.Now() - start, Duration(55ms));
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_LE(clock_.Now() - start, common::Duration(55ms));
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kUnconfigured);
   EXPECT_EQ(drive->sdo().counters().timeouts, 1u);
   // The next attempt works.
   drive->Configure();
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kConfigured);
 }
 
 TEST_F(CanDriveTest, MalformedSdoReplyFailsConfigureWithAProtocolError) {
@@ -596,20 +597,20 @@ TEST_F(CanDriveTest, HeartbeatLossFaultsTheDriveWithinTheConsumerTime) {
   Cia402CanDrive* drive = ConfiguredDrive();
   ASSERT_FALSE(drive->Enable(500ms));
   RunCycles(50);
-  ASSERT_EQ(drive->lifecycle(), DeviceLifecycle::kActive);
+  ASSERT_EQ(drive->lifecycle(), common::DeviceLifecycle::kActive);
   sims_[0]->StopHeartbeat(true);
-  const Duration stopped = clock_.Now();
-  Duration detected{0};
-  for (int i = 0; i < 200 && drive->lifecycle() == DeviceLifecycle::kActive; ++i) {
+  const common::Duration stopped = clock_.Now();
+  common::Duration detected{0};
+  for (int i = 0; i < 200 && drive->lifecycle() == common::DeviceLifecycle::kActive; ++i) {
     clock_.SleepFor(1ms);
     master_->Cycle();
     detected = clock_.Now();
   }
-  ASSERT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  ASSERT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   // The last heartbeat came at most one producer period (10 ms) before the stop; the loss is
   // noticed after the consumer time (30 ms), at the latest one cycle later.
-  EXPECT_GE(detected - stopped, Duration(30ms - 10ms));
-  EXPECT_LE(detected - stopped, Duration(30ms + 1ms));
+  EXPECT_GE(detected - stopped, common::Duration(30ms - 10ms));
+  EXPECT_LE(detected - stopped, common::Duration(30ms + 1ms));
   EXPECT_EQ(drive->status().fault_source, DriveFaultSource::kLink);
   EXPECT_THAT(drive->last_error_text(),
               MatchesRegex("axis1 \\(virtual:.* node 1\\): link lost: heartbeat lost: none for "
@@ -634,14 +635,14 @@ TEST_F(CanDriveTest, DisconnectedNodeIsALinkFaultAndEndsQuickStoppedOnReconnect)
   Cia402CanDrive* drive = ConfiguredDrive();
   ASSERT_FALSE(drive->Enable(500ms));
   sims_[0]->Disconnect(true);
-  const Duration start = clock_.Now();
+  const common::Duration start = clock_.Now();
   RunCycles(40);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(drive->status().fault_source, DriveFaultSource::kLink);
   EXPECT_THAT(drive->last_error_text(), ContainsRegex("^axis1 .*heartbeat lost"));
   EXPECT_GE(drive->counters().timeouts, 1u);  // TPDOs missed before the loss was declared
   // Cycles do not wait for a node known dead: 40 cycles took 40 periods and a bit.
-  EXPECT_LE(clock_.Now() - start, Duration(41ms + 30 * 800us));
+  EXPECT_LE(clock_.Now() - start, common::Duration(41ms + 30 * 800us));
   sims_[0]->Disconnect(false);
   RunCycles(30);
   const S sim_state = sims_[0]->device().state();
@@ -656,11 +657,11 @@ TEST_F(CanDriveTest, RebootedNodeMustBeConfiguredAgain) {
   // Somebody resets the node.
   ASSERT_FALSE(master_->SendNmt(canopen::NmtCommand::kResetNode, 1));
   RunCycles(5);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(drive->status().fault_source, DriveFaultSource::kLink);
   EXPECT_THAT(drive->last_error_text(), HasSubstr("rebooted"));
   EXPECT_EQ(drive->FaultReset(), Errc::kNotActive);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kUnconfigured);
   drive->Configure();
   ASSERT_FALSE(drive->Enable(500ms)) << drive->last_error_text();
 }
@@ -671,7 +672,7 @@ TEST_F(CanDriveTest, HeartbeatSentBeforeTheNmtStartIsNoFault) {
   // after the host has configured it.
   ASSERT_FALSE(sniffer_->Send(canopen::EncodeHeartbeat(1, canopen::NmtState::kPreOperational)));
   RunCycles(30);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kConfigured) << drive->last_error_text();
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kConfigured) << drive->last_error_text();
   EXPECT_EQ(drive->nmt_state(), canopen::NmtState::kOperational);
 }
 
@@ -681,7 +682,7 @@ TEST_F(CanDriveTest, NodeLeavingOperationalIsALinkFault) {
   RunCycles(20);  // an operational heartbeat came
   ASSERT_FALSE(master_->SendNmt(canopen::NmtCommand::kEnterPreOperational, 1));
   RunCycles(30);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_THAT(drive->last_error_text(),
               HasSubstr("the node left Operational: NMT state 'pre-operational'"));
   // A fault reset starts the node again.
@@ -700,7 +701,7 @@ TEST(CanDriveConfigTest, BadOptionsAreAConfigErrorNamingEveryField) {
   try {
     master.AddDrive(c);
     FAIL() << "no ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(),
                 ContainsRegex("CANopen master on virtual:drive-config, drive \"axis1\" \\(node "
                               "1\\): scaling.position_counts_per_unit 0.000000 must be finite "
@@ -709,8 +710,8 @@ TEST(CanDriveConfigTest, BadOptionsAreAConfigErrorNamingEveryField) {
                               "exceed heartbeat_producer 10 ms"));
   }
   master.AddDrive(DriveConfig(1));
-  EXPECT_THROW(master.AddDrive(DriveConfig(1)), ConfigError);
-  EXPECT_THROW(master.AddDrive(DriveConfig(0)), ConfigError);
+  EXPECT_THROW(master.AddDrive(DriveConfig(1)), common::ConfigError);
+  EXPECT_THROW(master.AddDrive(DriveConfig(0)), common::ConfigError);
 }
 
 // The same driver over slcan: SlcanBus -> pty -> SlcanAdapterSim -> virtual bus -> drive
@@ -722,7 +723,7 @@ TEST(CanDriveSlcanTest, ConfigureEnableMoveAndDisableOverSlcan) {
   auto sim_node = network->Connect("sim");
   SlcanAdapterSim adapter(pty.MasterPort(), adapter_node.get(), {});
   adapter.Start();
-  CanopenDriveSim sim(sim_node.get(), &SteadyClock::Instance(), SimOptions(4));
+  CanopenDriveSim sim(sim_node.get(), &common::SteadyClock::Instance(), SimOptions(4));
   sim.Start();
   CanopenMasterOptions options;
   options.cycle_period = 10ms;
@@ -751,7 +752,7 @@ TEST(CanDriveSlcanTest, ConfigureEnableMoveAndDisableOverSlcan) {
     master.Cycle();
   }
   EXPECT_NEAR(drive->status().position, start + 0.2, 0.01);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kActive) << drive->last_error_text();
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kActive) << drive->last_error_text();
   ASSERT_FALSE(drive->Disable()) << drive->last_error_text();
   EXPECT_EQ(sim.device().state(), S::kSwitchOnDisabled);
 }

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/drive/rs485_drive_registers.h"
 #include "hal/mock/rs485_drive_sim.h"
@@ -27,24 +28,23 @@ using ::testing::MatchesRegex;
 using S = Cia402State;
 using C = Cia402Command;
 
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kCountsPerRad = 10000.0 / (2 * kPi);
+constexpr double kCountsPerRad = 10000.0 / (2 * common::kPi);
 
 // Simulated time that passes only when the host sleeps on it; meanwhile the simulated drives
 // are stepped. (The Modbus exchanges themselves run in real time on the pty.)
-class ServicedClock final : public Clock {
+class ServicedClock final : public common::Clock {
  public:
-  Duration Now() const override { return time_.Now(); }
-  void SleepUntil(Duration deadline) override {
+  common::Duration Now() const override { return time_.Now(); }
+  void SleepUntil(common::Duration deadline) override {
     while (time_.Now() < deadline) {
-      time_.AdvanceTo(std::min(deadline, time_.Now() + Duration(500us)));
+      time_.AdvanceTo(std::min(deadline, time_.Now() + common::Duration(500us)));
       for (const auto& service : services_) service();
     }
   }
   void AddService(std::function<void()> service) { services_.push_back(std::move(service)); }
 
  private:
-  SimulatedClock time_;
+  common::SimulatedClock time_;
   std::vector<std::function<void()>> services_;
 };
 
@@ -106,9 +106,9 @@ class Rs485DriveTest : public ::testing::Test {
 TEST_F(Rs485DriveTest, ConfigureReadsTheIdentityAndSetsTheWatchdog) {
   MakeLine({3});
   Rs485Drive* drive = drives_[0];
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kUnconfigured);
   drive->Configure();
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_EQ(drive->name(), "arm3 (" + backend_ + " unit 3)");
   EXPECT_THAT(backend_, ContainsRegex("^modbus-rtu:/dev/pts/[0-9]+@3000000,8E1,"));
   EXPECT_EQ(drive->identity().vendor_id, kSimulatorVendorId);
@@ -129,7 +129,7 @@ TEST_F(Rs485DriveTest, EnableAndFollowARampInCsp) {
   Rs485Drive* drive = drives_[0];
   drive->Configure();
   ASSERT_FALSE(drive->Enable(500ms)) << drive->last_error_text();
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kActive);
   EXPECT_EQ(sim_->device(1).state(), S::kOperationEnabled);
   const double start = drive->status().position;
   for (int i = 1; i <= 100; ++i) {
@@ -153,7 +153,8 @@ TEST_F(Rs485DriveTest, EveryTransitionTheHostCanCommandLeadsWhereTheTableSays) {
   Rs485Drive* drive = drives_[0];
   drive->Configure();
   std::function<void(S)> reach = [&](S state) {
-    if (drive->lifecycle() == DeviceLifecycle::kFault || drive->status().state == S::kFault) {
+    if (drive->lifecycle() == common::DeviceLifecycle::kFault ||
+        drive->status().state == S::kFault) {
       ASSERT_FALSE(drive->FaultReset()) << drive->last_error_text();
     }
     switch (state) {
@@ -238,14 +239,14 @@ TEST_F(Rs485DriveTest, SilentDriveIsALinkFaultAndTheOthersQuickStop) {
   sim_->StopAnswering(2, true);
   std::error_code ec;
   int cycles = 0;
-  while (drives_[1]->lifecycle() != DeviceLifecycle::kFault && cycles < 10) {
+  while (drives_[1]->lifecycle() != common::DeviceLifecycle::kFault && cycles < 10) {
     clock_.SleepFor(2ms);
     ec = bus_->Cycle();
     ++cycles;
   }
   EXPECT_EQ(ec, Errc::kTimeout);
   EXPECT_EQ(cycles, 3);  // max_missed_cycles
-  EXPECT_EQ(drives_[1]->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drives_[1]->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(drives_[1]->status().fault_source, DriveFaultSource::kLink);
   EXPECT_EQ(drives_[1]->counters().timeouts - timeouts_before, 3u);
   // The line's client is shared: its timeouts are counted on the drive that made the request.
@@ -256,7 +257,7 @@ TEST_F(Rs485DriveTest, SilentDriveIsALinkFaultAndTheOthersQuickStop) {
                             "exchanges failed, the last: .*unit 2: .*timed out"));
   // Link errors are not device errors.
   EXPECT_EQ(drives_[1]->status().error_code, 0);
-  EXPECT_EQ(drives_[0]->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(drives_[0]->lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_THAT(drives_[0]->last_error_text(), HasSubstr("quick stop: arm2"));
   // A dead drive is polled every faulted_poll_cycles (50) cycles only.
   const uint64_t timeouts = drives_[1]->counters().timeouts;
@@ -283,7 +284,7 @@ TEST_F(Rs485DriveTest, BadCrcIsACountedLinkErrorNotAFault) {
   EXPECT_EQ(drives_[0]->counters().crc_errors, 1u);
   clock_.SleepFor(2ms);
   EXPECT_FALSE(bus_->Cycle());
-  EXPECT_EQ(drives_[0]->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(drives_[0]->lifecycle(), common::DeviceLifecycle::kActive);
   EXPECT_EQ(drives_[0]->status().fault_source, DriveFaultSource::kNone);
 }
 
@@ -294,7 +295,7 @@ TEST_F(Rs485DriveTest, DeviceFaultIsReportedWithItsCodeApartFromLinkErrors) {
   sim_->RaiseFault(1, 0x7121);
   Cycles(20);
   Rs485Drive* drive = drives_[0];
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(drive->status().fault_source, DriveFaultSource::kDevice);
   EXPECT_EQ(drive->status().error_code, 0x7121);
   EXPECT_THAT(drive->last_error_text(),
@@ -307,7 +308,7 @@ TEST_F(Rs485DriveTest, DeviceFaultIsReportedWithItsCodeApartFromLinkErrors) {
   EXPECT_NE(sim_->device(2).state(), S::kOperationEnabled);  // quick-stopped by the bus
   ASSERT_FALSE(drive->FaultReset()) << drive->last_error_text();
   EXPECT_EQ(sim_->device(1).state(), S::kSwitchOnDisabled);
-  EXPECT_EQ(drive->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(drive->lifecycle(), common::DeviceLifecycle::kConfigured);
 }
 
 TEST_F(Rs485DriveTest, DriveWatchdogTripsWhenTheHostStopsCycling) {
@@ -316,7 +317,7 @@ TEST_F(Rs485DriveTest, DriveWatchdogTripsWhenTheHostStopsCycling) {
   ASSERT_FALSE(drives_[0]->Enable(500ms));
   clock_.SleepFor(150ms);  // no exchange for longer than the 100 ms watchdog
   Cycles(20);
-  EXPECT_EQ(drives_[0]->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(drives_[0]->lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(drives_[0]->status().error_code, 0x8130);
   EXPECT_THAT(drives_[0]->last_error_text(), HasSubstr("0x8130 (life guard or heartbeat error)"));
   EXPECT_EQ(sim_->device(1).state(), S::kFault);
@@ -345,11 +346,11 @@ TEST_F(Rs485DriveTest, ConfigureFailsNamingTheDriveWhenItDoesNotAnswer) {
                                         "identity and supported modes failed: .*timed out"));
     EXPECT_EQ(e.code(), Errc::kTimeout);
   }
-  EXPECT_EQ(drives_[0]->lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(drives_[0]->lifecycle(), common::DeviceLifecycle::kUnconfigured);
 }
 
 TEST(Rs485DriveBusConfigTest, BadBackendsAndUnitsAreConfigErrors) {
-  EXPECT_THROW(Rs485DriveBus("modbus-tcp:127.0.0.1:502"), ConfigError);
+  EXPECT_THROW(Rs485DriveBus("modbus-tcp:127.0.0.1:502"), common::ConfigError);
   try {
     Rs485DriveBus bus("modbus-rtu:/dev/null@115200", [] {
       Rs485DriveBusOptions o;
@@ -357,16 +358,16 @@ TEST(Rs485DriveBusConfigTest, BadBackendsAndUnitsAreConfigErrors) {
       return o;
     }());
     FAIL() << "no ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), MatchesRegex("RS485 drive bus \"modbus-rtu:/dev/null@115200\": "
                                        "max_missed_cycles 0 must be >= 1"));
   }
   Rs485DriveBus bus("modbus-rtu:/dev/null@115200");
   Rs485DriveConfig c = DriveConfig(0);
-  EXPECT_THROW(bus.AddDrive(c), ConfigError);
+  EXPECT_THROW(bus.AddDrive(c), common::ConfigError);
   c = DriveConfig(1);
   c.watchdog = 70000ms;
-  EXPECT_THROW(bus.AddDrive(c), ConfigError);
+  EXPECT_THROW(bus.AddDrive(c), common::ConfigError);
 }
 
 }  // namespace

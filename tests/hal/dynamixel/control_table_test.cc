@@ -71,7 +71,7 @@ std::string Replace(std::string text, const std::string& from, const std::string
 std::string ErrorOf(const std::string& yaml, const std::string& source = "bad.yaml") {
   try {
     DxlControlTable::Parse(yaml, source);
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     return e.what();
   }
   return "(no error)";
@@ -133,7 +133,7 @@ TEST(DxlControlTableTest, UnknownModelNamesThePathAndTheShippedModels) {
   try {
     DxlControlTable::LoadModel("ax-99");
     FAIL() << "no exception";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), HasSubstr("ax-99"));
     EXPECT_THAT(e.what(), HasSubstr("config/dynamixel/ax-99.yaml"));
     EXPECT_THAT(e.what(), HasSubstr("mx-12w, xm430-w350"));
@@ -212,12 +212,12 @@ TEST(DxlControlTableTest, LoadFileNamesTheFile) {
   try {
     DxlControlTable::LoadFile(path);
     ADD_FAILURE() << "no exception";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), HasSubstr(path + ": invalid Dynamixel control table"));
     EXPECT_THAT(e.what(), HasSubstr("registers[12] (led).range: [5, 2] is empty"));
   }
   std::remove(path.c_str());
-  EXPECT_THROW(DxlControlTable::LoadFile(path), ConfigError);  // now absent
+  EXPECT_THROW(DxlControlTable::LoadFile(path), common::ConfigError);  // now absent
 }
 
 TEST(DxlControlTableTest, RawEncodingsRoundTrip) {

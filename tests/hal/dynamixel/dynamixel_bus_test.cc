@@ -272,8 +272,8 @@ TEST_F(DynamixelBusTest, SyncReadRetriesOnlyTheMissingServo) {
 }
 
 TEST_F(DynamixelBusTest, BadBackendOrOptionsAreConfigErrorsAndAMissingPortAHalError) {
-  EXPECT_THROW(DynamixelBus::Open("socketcan:can0", {}), ConfigError);
-  EXPECT_THROW(DynamixelBus::Open("tty:", {}), ConfigError);
+  EXPECT_THROW(DynamixelBus::Open("socketcan:can0", {}), common::ConfigError);
+  EXPECT_THROW(DynamixelBus::Open("tty:", {}), common::ConfigError);
   EXPECT_THROW(DynamixelBus::Open("tty:/dev/kinevis-no-such-port@1000000", {}), HalError);
   DynamixelBusOptions bad;
   bad.protocol = 3;
@@ -281,7 +281,7 @@ TEST_F(DynamixelBusTest, BadBackendOrOptionsAreConfigErrorsAndAMissingPortAHalEr
   try {
     DynamixelBus::Open("tty:" + pty_.slave_path(), bad);
     FAIL() << "no exception";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), HasSubstr("protocol 3"));
     EXPECT_THAT(e.what(), HasSubstr("retries 11"));
   }
@@ -293,18 +293,18 @@ TEST_F(DynamixelBusTest, ServoLifecycleRefusesCommandsUnlessActive) {
   StartSim(2, {1}, "xm430-w350");
   DynamixelServo servo(bus_.get(), 1, DxlControlTable::LoadModel("xm430-w350"));
   EXPECT_EQ(servo.name(), Backend() + " servo 1 (xm430-w350)");
-  EXPECT_EQ(servo.lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(servo.lifecycle(), common::DeviceLifecycle::kUnconfigured);
   EXPECT_EQ(servo.SetGoalPosition(1.0), Errc::kNotActive);
   EXPECT_EQ(servo.ReadState(), Errc::kNotActive);
   EXPECT_EQ(servo.Enable(), Errc::kNotActive);
   servo.Configure();
-  EXPECT_EQ(servo.lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(servo.lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_DOUBLE_EQ(servo.min_position(), 0.0);
   EXPECT_DOUBLE_EQ(servo.max_position(), 4095 * kTick);
   EXPECT_NEAR(servo.state().position, M_PI, 1e-12);
   EXPECT_EQ(servo.SetGoalPosition(1.0), Errc::kNotActive);
   ASSERT_FALSE(servo.Enable());
-  EXPECT_EQ(servo.lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(servo.lifecycle(), common::DeviceLifecycle::kActive);
   EXPECT_EQ(sim_->Register(1, "torque_enable"), 1);
   EXPECT_EQ(sim_->Register(1, "goal_position"), 2048);  // holds where it was
   EXPECT_EQ(servo.SetGoalPosition(-0.1), Errc::kInvalidArgument);
@@ -314,7 +314,7 @@ TEST_F(DynamixelBusTest, ServoLifecycleRefusesCommandsUnlessActive) {
   ASSERT_FALSE(servo.SetGoalPosition(M_PI / 2));
   EXPECT_EQ(sim_->Register(1, "goal_position"), 1024);
   ASSERT_FALSE(servo.Disable());
-  EXPECT_EQ(servo.lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(servo.lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_EQ(sim_->Register(1, "torque_enable"), 0);
   EXPECT_EQ(servo.SetGoalPosition(1.0), Errc::kNotActive);
 }
@@ -367,7 +367,7 @@ TEST_F(DynamixelBusTest, Protocol2OverloadFaultsTheServoTurnsTorqueOffAndRebootC
   sim_->InjectOverload(1);
   DxlServoState state;
   EXPECT_EQ(servo.ReadState(&state), Errc::kDeviceFault);
-  EXPECT_EQ(servo.lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(servo.lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(state.hardware_error, kDxl2HwOverload);
   EXPECT_FALSE(state.torque_enabled);
   EXPECT_EQ(sim_->Register(1, "torque_enable"), 0);
@@ -375,9 +375,9 @@ TEST_F(DynamixelBusTest, Protocol2OverloadFaultsTheServoTurnsTorqueOffAndRebootC
   EXPECT_EQ(servo.Enable(), Errc::kDeviceFault);
   // The other servo on the bus carries on.
   EXPECT_FALSE(other.SetGoalPosition(3.0));
-  EXPECT_EQ(other.lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(other.lifecycle(), common::DeviceLifecycle::kActive);
   ASSERT_FALSE(servo.ClearFault());  // reboot
-  EXPECT_EQ(servo.lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(servo.lifecycle(), common::DeviceLifecycle::kConfigured);
   EXPECT_FALSE(sim_->Overloaded(1));
   ASSERT_FALSE(servo.Enable());
   ASSERT_FALSE(servo.SetGoalPosition(1.0));
@@ -390,14 +390,14 @@ TEST_F(DynamixelBusTest, Protocol1OverloadNeedsAPowerCycle) {
   ASSERT_FALSE(servo.Enable());
   sim_->InjectOverload(1);
   EXPECT_EQ(servo.SetGoalPosition(2.0), Errc::kDeviceFault);  // the answer has the alarm
-  EXPECT_EQ(servo.lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(servo.lifecycle(), common::DeviceLifecycle::kFault);
   EXPECT_EQ(servo.state().status_error & kDxl1OverloadError, kDxl1OverloadError);
   EXPECT_EQ(servo.Reboot(), Errc::kUnsupported);
   EXPECT_EQ(servo.ClearFault(), Errc::kDeviceFault);  // still overloaded
-  EXPECT_EQ(servo.lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(servo.lifecycle(), common::DeviceLifecycle::kFault);
   sim_->PowerCycle(1);
   ASSERT_FALSE(servo.ClearFault());
-  EXPECT_EQ(servo.lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(servo.lifecycle(), common::DeviceLifecycle::kConfigured);
   ASSERT_FALSE(servo.Enable());
 }
 
@@ -447,7 +447,8 @@ TEST_F(DynamixelBusTest, ConfigureNamesTheServoAndTheCause) {
   } catch (const HalError& e) {
     EXPECT_THAT(e.cause(), HasSubstr("wheel or multi-turn mode"));
   }
-  EXPECT_THROW(DynamixelServo(bus_.get(), 1, DxlControlTable::LoadModel("mx-12w")), ConfigError);
+  EXPECT_THROW(DynamixelServo(bus_.get(), 1, DxlControlTable::LoadModel("mx-12w")),
+               common::ConfigError);
 }
 
 }  // namespace

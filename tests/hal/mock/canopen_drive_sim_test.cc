@@ -75,9 +75,9 @@ class CanopenDriveSimTest : public ::testing::Test {
   }
 
   // Advances the clock by `total` in steps of `step`, serving after each; returns the frames.
-  std::vector<CanFrame> Run(Duration total, Duration step = 1ms) {
+  std::vector<CanFrame> Run(common::Duration total, common::Duration step = 1ms) {
     std::vector<CanFrame> out;
-    for (Duration t{0}; t < total; t += step) {
+    for (common::Duration t{0}; t < total; t += step) {
       clock_.Advance(step);
       sim_->Service();
       for (const CanFrame& f : Frames()) out.push_back(f);
@@ -184,7 +184,7 @@ class CanopenDriveSimTest : public ::testing::Test {
   }
 
   // SYNC after advancing the clock by one cycle; returns the frames answered.
-  std::vector<CanFrame> Sync(Duration cycle = 1ms) {
+  std::vector<CanFrame> Sync(common::Duration cycle = 1ms) {
     clock_.Advance(cycle);
     return Exchange(EncodeSync());
   }
@@ -197,7 +197,7 @@ class CanopenDriveSimTest : public ::testing::Test {
     return out;
   }
 
-  SimulatedClock clock_;
+  common::SimulatedClock clock_;
   std::shared_ptr<VirtualCanNetwork> network_;
   std::unique_ptr<VirtualCanBus> host_;
   std::unique_ptr<VirtualCanBus> drive_bus_;
@@ -648,7 +648,7 @@ TEST_F(CanopenDriveSimTest, HeartbeatAtTheConfiguredPeriodWithTheNmtState) {
   Boot();
   EXPECT_TRUE(WithId(Run(500ms, 10ms), 0x705).empty()) << "off by default";
   Download(kProducerHeartbeatTime, 0, 100, 2);
-  std::vector<Duration> times;
+  std::vector<common::Duration> times;
   std::vector<uint8_t> states;
   for (int i = 0; i < 50; ++i) {
     if (i == 25) Nmt(NmtCommand::kStart);
@@ -782,7 +782,7 @@ TEST_F(CanopenDriveSimTest, BadOptionsThrow) {
   try {
     CanopenDriveSim sim(drive_bus_.get(), &clock_, o);
     FAIL() << "no exception";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(std::string(e.what()), ::testing::ContainsRegex("node 0 is outside 1\\.\\.127"));
     EXPECT_THAT(std::string(e.what()), ::testing::ContainsRegex("max_acceleration 0"));
   }
@@ -795,7 +795,7 @@ TEST(CanopenDriveSimThreadTest, StartServesInRealTime) {
   auto drive = network->Connect("drive");
   CanopenDriveSim::Options o;
   o.node = 9;
-  CanopenDriveSim sim(drive.get(), &SteadyClock::Instance(), o);
+  CanopenDriveSim sim(drive.get(), &common::SteadyClock::Instance(), o);
   sim.Start();
   CanFrame f;
   ASSERT_FALSE(host->Receive(&f, 5s));

@@ -462,7 +462,7 @@ TEST(Cia402DeviceTest, BadOptionsThrowNamingEachProblem) {
   try {
     Cia402Device d(o);
     FAIL() << "no exception";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(std::string(e.what()), ::testing::ContainsRegex("max_velocity -1"));
     EXPECT_THAT(std::string(e.what()), ::testing::ContainsRegex("quick_stop_option_code 12"));
     EXPECT_THAT(std::string(e.what()), ::testing::ContainsRegex("supported_modes 0x20"));

@@ -10,7 +10,7 @@
 #include <thread>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/common/error.h"
 #include "hal/dynamixel/control_table.h"
 #include "hal/dynamixel/protocol1.h"
@@ -45,7 +45,7 @@ Bytes Cat(std::initializer_list<Bytes> parts) {
 class DynamixelSimTest : public ::testing::Test {
  protected:
   void StartSim(int protocol, const std::vector<uint8_t>& ids, const std::string& model,
-                Clock* clock = &SteadyClock::Instance(),
+                common::Clock* clock = &common::SteadyClock::Instance(),
                 std::chrono::milliseconds reboot_time = 30ms) {
     DynamixelSim::Options options;
     options.protocol = protocol;
@@ -264,7 +264,7 @@ TEST_F(DynamixelSimTest, Protocol2UnknownInstructionIsAnInstructionError) {
 }
 
 TEST_F(DynamixelSimTest, Protocol2RebootAnswersThenResetsRamAndIsSilentMeanwhile) {
-  StartSim(2, {1}, "xm430-w350", &SteadyClock::Instance(), 2s);
+  StartSim(2, {1}, "xm430-w350", &common::SteadyClock::Instance(), 2s);
   EXPECT_EQ(Write2(1, 65, {1}), 0);  // LED on
   EXPECT_EQ(Write2(1, 64, {1}), 0);  // torque on
   EXPECT_THAT(Exchange(Dxl2InstructionPacket(1, DxlInstruction::kReboot), 11),
@@ -335,7 +335,7 @@ TEST_F(DynamixelSimTest, InstructionWithABadCrcIsDroppedAndCounted) {
 }
 
 TEST_F(DynamixelSimTest, MotionMovesAtTheProfileVelocityOnTheSimulatedClock) {
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   StartSim(2, {1}, "xm430-w350", &clock);
   EXPECT_EQ(Write2(1, 112, Le(100, 4)), 0);  // 100 x 0.229 rev/min = 2.398 rad/s
   EXPECT_EQ(Write2(1, 64, {1}), 0);
@@ -359,7 +359,7 @@ TEST_F(DynamixelSimTest, MotionMovesAtTheProfileVelocityOnTheSimulatedClock) {
 }
 
 TEST_F(DynamixelSimTest, MotionStopsOnOverload) {
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   StartSim(2, {1}, "xm430-w350", &clock);
   EXPECT_EQ(Write2(1, 64, {1}), 0);
   EXPECT_EQ(Write2(1, 116, Le(0, 4)), 0);  // profile velocity 0: the no-load speed
@@ -450,7 +450,7 @@ TEST_F(DynamixelSimTest, Protocol1CorruptedReplyHasAWrongChecksum) {
 }
 
 TEST_F(DynamixelSimTest, Protocol1MotionUsesTheMovingSpeedUnit) {
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   StartSim(1, {1}, "mx-12w", &clock);
   EXPECT_EQ(Write1(1, 32, Le(10, 2)), 0);  // 10 x 0.916 rev/min = 0.959 rad/s
   EXPECT_EQ(Write1(1, 24, {1}), 0);
@@ -465,7 +465,7 @@ TEST_F(DynamixelSimTest, Protocol1MotionUsesTheMovingSpeedUnit) {
 }
 
 TEST_F(DynamixelSimTest, MotionStopsAtAnAngleLimitSetAfterTheGoal) {
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   StartSim(1, {1}, "mx-12w", &clock);
   EXPECT_EQ(Write1(1, 24, {1}), 0);
   EXPECT_EQ(Write1(1, 30, Le(4000, 2)), 0);
@@ -479,18 +479,18 @@ TEST(DynamixelSimConfigTest, RefusesABadChain) {
   PtyPair pty;
   DynamixelSim::Options options;
   options.protocol = 2;
-  EXPECT_THROW(DynamixelSim(pty.MasterPort(), options), ConfigError);   // no servos
-  options.servos.push_back({1, DxlControlTable::LoadModel("mx-12w")});  // a 1.0 table
-  EXPECT_THROW(DynamixelSim(pty.MasterPort(), options), ConfigError);
+  EXPECT_THROW(DynamixelSim(pty.MasterPort(), options), common::ConfigError);  // no servos
+  options.servos.push_back({1, DxlControlTable::LoadModel("mx-12w")});         // a 1.0 table
+  EXPECT_THROW(DynamixelSim(pty.MasterPort(), options), common::ConfigError);
   options.servos[0].table = DxlControlTable::LoadModel("xm430-w350");
   options.servos.push_back({1, DxlControlTable::LoadModel("xm430-w350")});
-  EXPECT_THROW(DynamixelSim(pty.MasterPort(), options), ConfigError);  // id 1 twice
+  EXPECT_THROW(DynamixelSim(pty.MasterPort(), options), common::ConfigError);  // id 1 twice
   options.servos[1].id = 253;
-  EXPECT_THROW(DynamixelSim(pty.MasterPort(), options), ConfigError);  // not a 2.0 id
+  EXPECT_THROW(DynamixelSim(pty.MasterPort(), options), common::ConfigError);  // not a 2.0 id
   options.servos[1].id = 2;
   DynamixelSim sim(pty.MasterPort(), options);
-  EXPECT_THROW(sim.Register(3, "led"), ConfigError);
-  EXPECT_THROW(sim.Register(1, "no_such_register"), ConfigError);
+  EXPECT_THROW(sim.Register(3, "led"), common::ConfigError);
+  EXPECT_THROW(sim.Register(1, "no_such_register"), common::ConfigError);
 }
 
 }  // namespace

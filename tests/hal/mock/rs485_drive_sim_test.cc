@@ -62,7 +62,7 @@ class Rs485DriveSimTest : public ::testing::Test {
     return ModbusClient::Open(sim_->backend() + ",unit=" + std::to_string(unit) + options);
   }
 
-  void Advance(Duration d) {
+  void Advance(common::Duration d) {
     clock_.Advance(d);
     sim_->Step();
   }
@@ -84,7 +84,7 @@ class Rs485DriveSimTest : public ::testing::Test {
   }
 
   PtyPair pty_;
-  SimulatedClock clock_;
+  common::SimulatedClock clock_;
   std::unique_ptr<Rs485DriveSim> sim_;
 };
 
@@ -383,7 +383,7 @@ TEST(Rs485DriveSimThreadTest, StartStepsTheDrivesInRealTime) {
   PtyPair pty;
   Rs485DriveSim::Options o;
   o.drives = {Drive(7, 7)};
-  Rs485DriveSim sim(pty.master_fd(), pty.slave_path(), &SteadyClock::Instance(), o);
+  Rs485DriveSim sim(pty.master_fd(), pty.slave_path(), &common::SteadyClock::Instance(), o);
   sim.Start();
   sim.Start();  // does nothing when running
   auto client = ModbusClient::Open(sim.backend() + ",unit=7" + kPatient);
@@ -405,21 +405,21 @@ TEST(Rs485DriveSimThreadTest, StartStepsTheDrivesInRealTime) {
 
 TEST(Rs485DriveSimConfigTest, BadOptionsThrowNamingEachProblem) {
   PtyPair pty;
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   Rs485DriveSim::Options o;
   o.drives = {Drive(0, 1), Drive(5, 1), Drive(5, 2), Drive(300, 3)};
   try {
     Rs485DriveSim sim(pty.master_fd(), pty.slave_path(), &clock, o);
     FAIL() << "no exception";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(std::string(e.what()), ::testing::ContainsRegex("unit 0 is outside 1\\.\\.247"));
     EXPECT_THAT(std::string(e.what()), ::testing::ContainsRegex("unit 5 appears twice"));
     EXPECT_THAT(std::string(e.what()), ::testing::ContainsRegex("unit 300 is outside"));
   }
   o.drives = {Drive(1, 1)};
   Rs485DriveSim sim(pty.master_fd(), pty.slave_path(), &clock, o);
-  EXPECT_THROW(sim.device(2), ConfigError);
-  EXPECT_THROW(sim.StopAnswering(9, true), ConfigError);
+  EXPECT_THROW(sim.device(2), common::ConfigError);
+  EXPECT_THROW(sim.StopAnswering(9, true), common::ConfigError);
 }
 
 }  // namespace

@@ -112,10 +112,10 @@ TEST_F(SlcanAdapterSimTest, AnswersWithTheConfiguredVersionAndSerialNumber) {
 TEST_F(SlcanAdapterSimTest, RejectsAVersionThatIsNotFourCharacters) {
   EXPECT_THROW(SlcanAdapterSim(pty_.MasterPort(), adapter_node_.get(),
                                SlcanAdapterSim::Options{"12345", "KV01"}),
-               ConfigError);
+               common::ConfigError);
   EXPECT_THROW(SlcanAdapterSim(pty_.MasterPort(), adapter_node_.get(),
                                SlcanAdapterSim::Options{"1013", "A B1"}),
-               ConfigError);
+               common::ConfigError);
 }
 
 // The Lawicel state rules, one row per command and state.

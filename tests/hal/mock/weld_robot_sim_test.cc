@@ -16,7 +16,7 @@
 #include <thread>
 #include <vector>
 
-#include "hal/common/clock.h"
+#include "common/clock.h"
 #include "hal/common/error.h"
 #include "hal/modbus/modbus_client.h"
 #include "hal/weld/weld_robot_registers.h"
@@ -118,7 +118,7 @@ class WeldRobotSimTest : public ::testing::Test {
     sim_->Update();
   }
 
-  SimulatedClock clock_;
+  common::SimulatedClock clock_;
   std::unique_ptr<WeldRobotSim> sim_;
   std::unique_ptr<ModbusClient> client_;
 };
@@ -418,7 +418,7 @@ TEST_F(WeldRobotSimTest, InjectedAlarmStopsMotionAndCarriesItsCode) {
   EXPECT_EQ(Read().joints[3], 50000);
   EXPECT_STREQ(wr::AlarmName(s.alarm), "WIRE STUCK");
   EXPECT_STREQ(wr::AlarmName(999), "UNKNOWN ALARM");
-  EXPECT_THROW(sim_->RaiseAlarm(0), ConfigError);
+  EXPECT_THROW(sim_->RaiseAlarm(0), common::ConfigError);
 }
 
 // ---- Commands, set-points and the arc interlock -----------------------------------------------
@@ -492,7 +492,7 @@ TEST_F(WeldRobotSimTest, ArcBurnsOnlyWhileEnabledOnAnArcSegmentWithSetPoints) {
 // ---- Transports, the executor thread and fault injection --------------------------------------
 
 TEST(WeldRobotSimRtuTest, ServesTheSameMapOverRtuOnAPty) {
-  SimulatedClock clock;
+  common::SimulatedClock clock;
   WeldRobotSim::Options o;
   o.run_executor = false;
   o.clock = &clock;
@@ -549,7 +549,7 @@ TEST(WeldRobotSimOptionsTest, BadOptionsThrowNamingEveryField) {
   try {
     WeldRobotSim::ListenTcp("127.0.0.1", 0, o);
     FAIL() << "no ConfigError";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), HasSubstr("joint θ2 limits"));
     EXPECT_THAT(e.what(), HasSubstr("buffer_capacity 0"));
     EXPECT_THAT(e.what(), HasSubstr("max_segment_duration"));

@@ -492,8 +492,8 @@ TEST(ModbusClientOpenTest, ConnectionRefusedThrowsHalErrorNamingHostAndPort) {
 }
 
 TEST(ModbusClientOpenTest, MalformedBackendStringThrowsConfigError) {
-  EXPECT_THROW(ModbusClient::Open("modbus-tcp:127.0.0.1"), ConfigError);
-  EXPECT_THROW(ModbusClient::Open("tty:/dev/ttyUSB0"), ConfigError);
+  EXPECT_THROW(ModbusClient::Open("modbus-tcp:127.0.0.1"), common::ConfigError);
+  EXPECT_THROW(ModbusClient::Open("tty:/dev/ttyUSB0"), common::ConfigError);
   ModbusBackendSpec spec;
   spec.host = "127.0.0.1";
   spec.port = 502;
@@ -502,7 +502,7 @@ TEST(ModbusClientOpenTest, MalformedBackendStringThrowsConfigError) {
   try {
     ModbusClient::Open(spec);
     FAIL() << "Open() accepted timeout_ms 0 and unit 300";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), ContainsRegex("unit 300 is not in 0..247.*timeout_ms 0"));
   }
 }
@@ -533,7 +533,7 @@ TEST(ModbusRtuClientOpenTest, BaudRateLibmodbusCannotSetIsAConfigError) {
   try {
     ModbusClient::Open("modbus-rtu:" + pty.slave_path() + "@2000000");
     FAIL() << "accepted a baud rate libmodbus would silently replace by 9600";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), ContainsRegex("baud rate 2000000 is not one libmodbus can set"));
   }
 }

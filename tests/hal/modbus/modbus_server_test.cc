@@ -163,19 +163,19 @@ TEST(ModbusServerSetupTest, BadOptionsThrowConfigErrorNamingEveryField) {
   try {
     ModbusServer::ListenTcp("127.0.0.1", 0, o);
     FAIL() << "accepted bad options";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), ContainsRegex("coils -1 is not in 0..65536.*input_registers 70000.*"
                                         "unit 0 is not in 1..247"));
   }
   ModbusServer::Options rtu;
   rtu.parity = 'X';
   rtu.data_bits = 9;
-  EXPECT_THROW(ModbusServer::ServeRtu(-1, "/dev/null"), ConfigError);
+  EXPECT_THROW(ModbusServer::ServeRtu(-1, "/dev/null"), common::ConfigError);
   PtyPair pty;
   try {
     ModbusServer::ServeRtu(pty.master_fd(), pty.slave_path(), rtu);
     FAIL() << "accepted parity X";
-  } catch (const ConfigError& e) {
+  } catch (const common::ConfigError& e) {
     EXPECT_THAT(e.what(), ContainsRegex("parity 'X'.*data_bits 9"));
   }
 }

@@ -145,10 +145,10 @@ INSTANTIATE_TEST_SUITE_P(Transports, WeldRobotClientTest,
 TEST_P(WeldRobotClientTest, ConfigureReadsTheIdentityAndLimitsInSiUnits) {
   StartSim(false);
   auto client = WeldRobotClient::Open(sim_->backend() + kPatient);
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kUnconfigured);
   EXPECT_EQ(client->name(), "weld-robot (" + sim_->backend() + kPatient + ")");
   client->Configure();
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kConfigured);
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kConfigured);
   const WeldRobotIdentity& id = client->identity();
   EXPECT_EQ(id.map_version, 1);
   EXPECT_EQ(id.joint_count, 5);
@@ -217,7 +217,7 @@ TEST_P(WeldRobotClientTest, BadWeldParametersAndArcWithoutSetPointsAreRefused) {
   EXPECT_THAT(client->last_error_text(), HasSubstr("current 500 A is not in 0..400"));
   EXPECT_EQ(client->SetWeldParameters({100.0, NAN, 0.1}), Errc::kInvalidArgument);
   EXPECT_EQ(sim_->state().current, 0.0);
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kActive);  // bad arguments are no fault
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kActive);  // bad arguments are no fault
 }
 
 TEST_P(WeldRobotClientTest, LimitsAreCheckedBeforeAnythingIsSent) {
@@ -237,7 +237,7 @@ TEST_P(WeldRobotClientTest, LimitsAreCheckedBeforeAnythingIsSent) {
   points[3].duration = 0;
   EXPECT_EQ(client->StreamTrajectory(points, {}, nullptr, {}, &report), Errc::kInvalidArgument);
   EXPECT_EQ(sim_->statistics().segments_accepted, 0u);
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kActive);
 }
 
 TEST_P(WeldRobotClientTest, ConfigureRefusesADeviceThatIsNoWeldRobot) {
@@ -257,7 +257,7 @@ TEST_P(WeldRobotClientTest, ConfigureRefusesADeviceThatIsNoWeldRobot) {
     EXPECT_EQ(e.device(), client->name());
     EXPECT_THAT(e.what(), HasSubstr("identity magic 0x0000 (expected 0x4b57)"));
   }
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kUnconfigured);
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kUnconfigured);
 }
 
 TEST(WeldRobotAlarmCategoryTest, AlarmCodesAreErrorCodesNamingTheAlarm) {
@@ -355,7 +355,7 @@ TEST_P(WeldRobotClientTest, CancelStopsTheRobot) {
   EXPECT_LT(report.executed, 200u);
   EXPECT_THAT(report.message, HasSubstr("canceled"));
   ExpectSafe();
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kActive);  // a cancel is no fault
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kActive);  // a cancel is no fault
 }
 
 TEST_P(WeldRobotClientTest, WholeStreamIsBoundedInTime) {
@@ -372,7 +372,7 @@ TEST_P(WeldRobotClientTest, WholeStreamIsBoundedInTime) {
   EXPECT_THAT(report.message, HasSubstr("not finished within 0.300 s"));
   EXPECT_TRUE(report.safe_state_confirmed);
   ExpectSafe();
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kFault);
 }
 
 // ---- Alarms -----------------------------------------------------------------------------------
@@ -389,7 +389,7 @@ void ExpectAlarmReport(const WeldRobotClient& client, const WeldStreamReport& re
   EXPECT_TRUE(report.safe_state_confirmed);
   EXPECT_THAT(report.message, HasSubstr("safe state confirmed"));
   EXPECT_LT(report.executed, report.total);
-  EXPECT_EQ(client.lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(client.lifecycle(), common::DeviceLifecycle::kFault);
 }
 
 TEST_P(WeldRobotClientTest, OutOfRangeTargetAlarmIsReported) {
@@ -414,7 +414,7 @@ TEST_P(WeldRobotClientTest, OutOfRangeTargetAlarmIsReported) {
   // Until reset the driver refuses to move; the reset makes it active again.
   EXPECT_EQ(client->StreamTrajectory(Trajectory(5), {}, nullptr), Errc::kNotActive);
   ASSERT_EQ(client->AlarmReset(), std::error_code());
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kActive);
   EXPECT_EQ(sim_->state().alarm_code, 0);
 }
 
@@ -563,7 +563,7 @@ TEST_P(WeldRobotClientTcpTest, DroppedLinkMidStreamIsReportedAndTheRobotStopped)
     EXPECT_THAT(report.message, ContainsRegex("link (failed|interrupted)"));
     EXPECT_TRUE(report.safe_state_confirmed) << report.message;
     EXPECT_LT(report.executed, 200u);
-    EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kFault);
+    EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kFault);
     ExpectSafe();
     // Once the link is back, the fault is cleared and the robot streams again.
     ASSERT_EQ(client->AlarmReset(), std::error_code());
@@ -597,7 +597,7 @@ TEST_P(WeldRobotClientTest, RobotThatStopsAnsweringTimesOutWithinBounds) {
   EXPECT_THAT(report.message, HasSubstr("timed out"));
   EXPECT_FALSE(report.safe_state_confirmed);
   EXPECT_THAT(report.message, HasSubstr("could NOT be confirmed"));
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kFault);
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kFault);
   // Meanwhile the robot ran its buffer empty, and the interlock put the arc out.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
   while (sim_->state().motion == wr::MotionState::kMoving &&
@@ -611,7 +611,7 @@ TEST_P(WeldRobotClientTest, RobotThatStopsAnsweringTimesOutWithinBounds) {
   EXPECT_EQ(client->Stop(), std::error_code());
   ExpectSafe();
   EXPECT_EQ(client->AlarmReset(), std::error_code());
-  EXPECT_EQ(client->lifecycle(), DeviceLifecycle::kActive);
+  EXPECT_EQ(client->lifecycle(), common::DeviceLifecycle::kActive);
 }
 
 }  // namespace

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "ceres/jet.h"  // header-only: the scalar type calibration/diamond will use
+#include "common/units.h"
 #include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::robots {
@@ -22,8 +23,6 @@ using ::testing::AllOf;
 using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
 using ::testing::IsEmpty;
-
-constexpr double kPi = 3.14159265358979323846;
 
 // Seed 001 eq. (35) exactly as printed, with the sign chosen by `sign` (+1 or −1).
 double SeedEquation35(double alpha, double beta, double theta1, double theta2, double sign) {
@@ -84,7 +83,7 @@ TEST(DiamondModelTest, SeedParameterSetsAreTableI) {
     EXPECT_NO_THROW(DiamondModel::Checked(model));
     // The seed's quarter sphere (φ ∈ [0, π]) and its validation lines (seed §V-C) lie inside.
     EXPECT_EQ(model.phi_min, 0.0);
-    EXPECT_NEAR(model.phi_max, kPi, 1e-15);
+    EXPECT_NEAR(model.phi_max, common::kPi, 1e-15);
   }
 }
 
@@ -127,11 +126,12 @@ TEST(DiamondModelTest, InvalidModelNamesEveryBadField) {
 TEST(DiamondModelTest, HandComputedPoseMatches) {
   const DiamondModel model = DiamondModel::APriori();
   DiamondData data;
-  const DiamondReachability reach =
-      ForwardKinematics(model, Eigen::Vector2d(kPi / 2 + kPi / 3, kPi / 2 - kPi / 3), &data);
+  const DiamondReachability reach = ForwardKinematics(
+      model, Eigen::Vector2d(common::kPi / 2 + common::kPi / 3, common::kPi / 2 - common::kPi / 3),
+      &data);
   EXPECT_TRUE(reach.ok()) << reach.Describe();
   ASSERT_TRUE(data.valid);
-  EXPECT_NEAR(data.task[0], kPi / 2, 1e-15);
+  EXPECT_NEAR(data.task[0], common::kPi / 2, 1e-15);
   EXPECT_NEAR(data.task[1], 2 * std::atan(0.5), 1e-15);
   EXPECT_NEAR((data.u_O - Eigen::Vector3d(0.0, 0.8, 0.6)).norm(), 0.0, 1e-15);
   EXPECT_NEAR((data.p_O_T - Eigen::Vector3d(0.0, 0.16, 0.12)).norm(), 0.0, 1e-15);
@@ -141,11 +141,11 @@ TEST(DiamondModelTest, HandComputedPoseMatches) {
   // about φ (θ_1 + θ_2 = π, the seed's "vertical" validation line, §V-C).
   Eigen::Vector2d q;
   const DiamondReachability centre =
-      InverseKinematics(model, Eigen::Vector2d(kPi / 2, kPi / 4), &q);
+      InverseKinematics(model, Eigen::Vector2d(common::kPi / 2, common::kPi / 4), &q);
   EXPECT_TRUE(centre.ok()) << centre.Describe();
-  const double A = std::acos(std::tan(kPi / 8));
-  EXPECT_NEAR(q[0], kPi / 2 + A, 1e-14);
-  EXPECT_NEAR(q[1], kPi / 2 - A, 1e-14);
+  const double A = std::acos(std::tan(common::kPi / 8));
+  EXPECT_NEAR(q[0], common::kPi / 2 + A, 1e-14);
+  EXPECT_NEAR(q[1], common::kPi / 2 - A, 1e-14);
 }
 
 TEST(DiamondModelTest, ForwardKinematicsIsSeedEquation35WithThePlusSign) {
@@ -334,14 +334,14 @@ TEST(DiamondModelTest, OutOfWorkspaceInputReturnsStatusNotNaN) {
   const DiamondModel model = DiamondModel::APriori();
   Eigen::Vector2d q(99.0, 99.0);
   // γ beyond α + β: no joint angles close the limbs there; also outside the box.
-  DiamondReachability reach = InverseKinematics(model, Eigen::Vector2d(kPi / 2, 1.7), &q);
+  DiamondReachability reach = InverseKinematics(model, Eigen::Vector2d(common::kPi / 2, 1.7), &q);
   EXPECT_TRUE(reach.Has(DiamondReach::kUnreachable));
   EXPECT_TRUE(reach.Has(DiamondReach::kGammaOutside));
   EXPECT_EQ(q, Eigen::Vector2d(99.0, 99.0));  // untouched
   EXPECT_THAT(reach.Describe(), AllOf(HasSubstr("unreachable: cos A = 1.13"),
                                       ContainsRegex("gamma = 1\\.7 rad outside the workspace")));
   // φ below the box: θ_2 = φ − A falls below its stop too.
-  reach = CheckWorkspace(model, Eigen::Vector2d(-0.8, kPi / 4));
+  reach = CheckWorkspace(model, Eigen::Vector2d(-0.8, common::kPi / 4));
   EXPECT_EQ(reach.first(), DiamondReach::kPhiOutside);
   EXPECT_TRUE(reach.Has(DiamondReach::kBelowThetaMin));
   EXPECT_THAT(reach.Describe(), ContainsRegex("theta_2 = -1\\.9[0-9]* rad below theta_min\\[1\\]"));
@@ -397,7 +397,9 @@ TEST(DiamondModelTest, SingularitiesAreReportedWithTheirCause) {
   const DiamondModel model = DiamondModel::APriori();
   DiamondData data;
   // Home (3-4-5) pose: well conditioned.
-  ForwardKinematics(model, Eigen::Vector2d(kPi / 2 + kPi / 3, kPi / 2 - kPi / 3), &data);
+  ForwardKinematics(
+      model, Eigen::Vector2d(common::kPi / 2 + common::kPi / 3, common::kPi / 2 - common::kPi / 3),
+      &data);
   DiamondSingularityReport report = AnalyzeSingularity(model, data);
   EXPECT_EQ(report.kind, DiamondSingularity::kNone);
   EXPECT_NEAR(report.task_condition, 2.0 * std::sqrt(3.0) / 2.0 / 1.25, 1e-12);
@@ -408,7 +410,8 @@ TEST(DiamondModelTest, SingularitiesAreReportedWithTheirCause) {
   EXPECT_EQ(report.kind, DiamondSingularity::kLimbsAligned);
   EXPECT_GT(report.task_condition, 1e5);
   // Tool axis near z_O (α = β, A → π/2): only the coordinates degenerate.
-  ForwardKinematics(model, Eigen::Vector2d(1.0 + kPi / 2 - 1e-6, 1.0 - kPi / 2 + 1e-6), &data);
+  ForwardKinematics(
+      model, Eigen::Vector2d(1.0 + common::kPi / 2 - 1e-6, 1.0 - common::kPi / 2 + 1e-6), &data);
   report = AnalyzeSingularity(model, data);
   EXPECT_EQ(report.kind, DiamondSingularity::kToolOnBaseAxis);
   EXPECT_LT(report.task_condition, 3.0);

@@ -10,6 +10,8 @@
 #include <random>
 #include <vector>
 
+#include "common/so3.h"
+#include "common/units.h"
 #include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::robots {
@@ -17,8 +19,6 @@ namespace {
 
 using ::testing::ContainsRegex;
 using ::testing::IsEmpty;
-
-constexpr double kPi = 3.14159265358979323846;
 
 // Applies the increment used throughout: p_BP += δp, R_BP = exp([δθ]×) R_BP (twist in B at the
 // platform origin, integrated over unit time).
@@ -31,12 +31,6 @@ Eigen::Isometry3d Perturb(const Eigen::Isometry3d& X_BP, const Vector6d& delta) 
         Eigen::AngleAxisd(angle, delta.tail<3>() / angle).toRotationMatrix() * X_BP.linear();
   }
   return X;
-}
-
-Eigen::Matrix3d Skew(const Eigen::Vector3d& a) {
-  Eigen::Matrix3d s;
-  s << 0.0, -a.z(), a.y(), a.z(), 0.0, -a.x(), -a.y(), a.x(), 0.0;
-  return s;
 }
 
 double RotationAngleBetween(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
@@ -74,7 +68,7 @@ TEST(HexapodModelTest, DefaultModelIsValidAndMatchesTheDocumentedGeometry) {
   // Base points come in pairs whose centres are 120° apart.
   for (int k = 0; k < 3; ++k) {
     const Eigen::Vector3d centre = model.p_B_A[2 * k] + model.p_B_A[2 * k + 1];
-    const double angle_deg = std::atan2(centre.y(), centre.x()) * 180.0 / kPi;
+    const double angle_deg = std::atan2(centre.y(), centre.x()) * 180.0 / common::kPi;
     EXPECT_NEAR(std::remainder(angle_deg - 120.0 * k, 360.0), 0.0, 1e-9);
   }
   HexapodData data;
@@ -207,7 +201,8 @@ TEST(HexapodModelTest, ForwardKinematicsInvertsInverseKinematicsFromPerturbedGue
 TEST(HexapodModelTest, ForwardKinematicsReportsSingularConfiguration) {
   const HexapodModel model = HexapodModel::Default();
   Eigen::Isometry3d singular = HexapodModel::NominalPose();
-  singular.linear() = Eigen::AngleAxisd(kPi / 2, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  singular.linear() =
+      Eigen::AngleAxisd(common::kPi / 2, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   HexapodData data;
   InverseKinematics(model, singular, &data);
   EXPECT_GT(ConditionNumber(InverseDifferential(data)), 1e12);
@@ -322,7 +317,7 @@ TEST(HexapodModelTest, InverseDifferentialAgreesWithSeedFormReferredToBaseOrigin
       seed_form.block<1, 3>(j, 3) = model.p_B_A[j].cross(data.u_B[j]).transpose();
     }
     Matrix6d shift = Matrix6d::Identity();
-    shift.block<3, 3>(0, 3) = -Skew(X_BP.translation());
+    shift.block<3, 3>(0, 3) = -common::Skew(X_BP.translation());
     EXPECT_LT((InverseDifferential(data) * shift - seed_form).norm(), 1e-12);
   }
 }
@@ -363,7 +358,7 @@ TEST(HexapodModelTest, LegDirectionInteractionMatrixInCameraMatchesCentralDiffer
   for (const Eigen::Isometry3d& X_BP : RandomReachablePoses(model, 20, &rng)) {
     Eigen::Isometry3d X_CB = Eigen::Isometry3d::Identity();
     const Eigen::Vector3d axis = Eigen::Vector3d(unit(rng), unit(rng), unit(rng)).normalized();
-    X_CB.linear() = Eigen::AngleAxisd(kPi * unit(rng), axis).toRotationMatrix();
+    X_CB.linear() = Eigen::AngleAxisd(common::kPi * unit(rng), axis).toRotationMatrix();
     X_CB.translation() = Eigen::Vector3d(unit(rng), unit(rng), unit(rng));
     const Eigen::Matrix3d R_CB = X_CB.linear();
     Matrix6d twist_B_from_C = Matrix6d::Zero();
@@ -395,14 +390,14 @@ TEST(HexapodModelTest, LegDirectionInteractionMatrixAgreesWithSeedFormReferredTo
   for (const Eigen::Isometry3d& X_BP : RandomReachablePoses(model, 10, &rng)) {
     InverseKinematics(model, X_BP, &data);
     Matrix6d shift = Matrix6d::Identity();
-    shift.block<3, 3>(0, 3) = -Skew(X_BP.translation());
+    shift.block<3, 3>(0, 3) = -common::Skew(X_BP.translation());
     for (int j = 0; j < kHexapodLegs; ++j) {
       const Eigen::Vector3d& u = data.u_B[j];
       const Eigen::Matrix3d projector =
           (Eigen::Matrix3d::Identity() - u * u.transpose()) / data.q[j];
       Matrix36d seed_form;
       seed_form.leftCols<3>() = projector;
-      seed_form.rightCols<3>() = -projector * Skew(model.p_B_A[j] + data.q[j] * u);
+      seed_form.rightCols<3>() = -projector * common::Skew(model.p_B_A[j] + data.q[j] * u);
       EXPECT_LT((LegDirectionInteractionMatrix(data, j) * shift - seed_form).norm(), 1e-12);
     }
   }

@@ -9,13 +9,11 @@
 #include <new>
 #include <random>
 
+#include "common/units.h"
 #include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::robots {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDeg = kPi / 180.0;
 
 // Torch: tip 25 mm off axis and 250 mm out along z_5 (assumed configuration values).
 constexpr double kPx5 = 0.025;
@@ -154,14 +152,14 @@ TEST(Weld5Model, PrintedPx2TermsOfSeedDisagreeWithChain) {
 
 TEST(Weld5Model, SeedParametersInSi) {
   const Weld5Model m = Weld5Model::Seed(Eigen::Isometry3d::Identity());
-  EXPECT_NEAR(m.joints[0].alpha, -89.827 * kDeg, 1e-15);
-  EXPECT_NEAR(m.joints[1].alpha, 90.0 * kDeg, 1e-15);
+  EXPECT_NEAR(m.joints[0].alpha, -89.827 * common::kDeg, 1e-15);
+  EXPECT_NEAR(m.joints[1].alpha, 90.0 * common::kDeg, 1e-15);
   EXPECT_DOUBLE_EQ(m.joints[0].d, 0.275);
   EXPECT_DOUBLE_EQ(m.joints[1].d, 0.104718);
   EXPECT_DOUBLE_EQ(m.joints[0].a, -0.059e-3);
   EXPECT_DOUBLE_EQ(m.joints[1].a, 0.033389);
-  EXPECT_NEAR(m.joints[0].theta_offset, 0.1097 * kDeg, 1e-15);
-  EXPECT_NEAR(m.joints[1].theta_offset, 89.602 * kDeg, 1e-15);
+  EXPECT_NEAR(m.joints[0].theta_offset, 0.1097 * common::kDeg, 1e-15);
+  EXPECT_NEAR(m.joints[1].theta_offset, 89.602 * common::kDeg, 1e-15);
   EXPECT_TRUE(m.joints[2].prismatic);
   for (int i = 0; i < kWeld5Joints; ++i) {
     EXPECT_LT(m.q_min(i), m.q_max(i));

@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "common/units.h"
 #include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::vision {
@@ -16,8 +17,6 @@ namespace {
 
 using ::testing::ContainsRegex;
 using ::testing::IsEmpty;
-
-constexpr double kPi = 3.14159265358979323846;
 
 // The seed's 4 mm setup with every misalignment of seed §4.2 switched on: sensor offsets and
 // rotations γ, ρ, θ, the mirror axis off the pinhole, and the mirror axis tilted against the
@@ -197,7 +196,7 @@ TEST(HyperbolicMirrorCameraTest, GroundRoundTripsToMicroPixels) {
 
     std::mt19937 rng(7);
     std::uniform_real_distribution<double> distance(0.2, 6.0);
-    std::uniform_real_distribution<double> azimuth(-kPi, kPi);
+    std::uniform_real_distribution<double> azimuth(-common::kPi, common::kPi);
     int projected = 0;
     for (int i = 0; i < 400; ++i) {
       const double d = distance(rng);
@@ -221,7 +220,7 @@ TEST(HyperbolicMirrorCameraTest, ProjectedPointsLieOnTheirBackProjectedRays) {
   const HyperbolicMirrorCamera camera(Misaligned(HyperbolicMirrorParameters::Seed000Lens4mm()));
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> distance(0.3, 5.0);
-  std::uniform_real_distribution<double> azimuth(-kPi, kPi);
+  std::uniform_real_distribution<double> azimuth(-common::kPi, common::kPi);
   std::uniform_real_distribution<double> height(0.0, 0.4);
   int checked = 0;
   for (int i = 0; i < 300; ++i) {
@@ -280,7 +279,7 @@ TEST(HyperbolicMirrorCameraTest, PixelsBeyondTheRimAreInvalid) {
                   0.0045 * theta_pixel * theta_pixel * theta_pixel;
   }
   const double expected_radius = p.focal_length * std::tan(theta_pixel) / p.pixel_pitch;
-  for (double phi = 0.0; phi < 2.0 * kPi; phi += kPi / 7.0) {
+  for (double phi = 0.0; phi < 2.0 * common::kPi; phi += common::kPi / 7.0) {
     EXPECT_NEAR(RimRadiusPx(camera, phi), expected_radius, 0.05) << phi;
   }
   GroundMap map;
@@ -312,7 +311,7 @@ TEST(HyperbolicMirrorCameraTest, AlignedMapIsRadiallySymmetricAboutTheMirrorAxis
       Eigen::Vector2d reference;
       ASSERT_EQ(camera.BackProjectToGround(centre + Eigen::Vector2d(radius, 0.0), &reference),
                 ProjectionStatus::kOk);
-      for (double phi = 0.1; phi < 2.0 * kPi; phi += 0.37) {
+      for (double phi = 0.1; phi < 2.0 * common::kPi; phi += 0.37) {
         const Eigen::Vector2d pixel =
             centre + radius * Eigen::Vector2d(std::cos(phi), std::sin(phi));
         Eigen::Vector2d ground;
@@ -322,7 +321,8 @@ TEST(HyperbolicMirrorCameraTest, AlignedMapIsRadiallySymmetricAboutTheMirrorAxis
         // The ground azimuth turns with the image azimuth (up to the image's mirror flip).
         const double turn =
             std::atan2(ground.y(), ground.x()) - std::atan2(reference.y(), reference.x());
-        EXPECT_NEAR(std::remainder(turn - phi, 2.0 * kPi), 0.0, 1e-9) << radius << " " << phi;
+        EXPECT_NEAR(std::remainder(turn - phi, 2.0 * common::kPi), 0.0, 1e-9)
+            << radius << " " << phi;
       }
     }
   }
@@ -332,7 +332,7 @@ TEST(HyperbolicMirrorCameraTest, DistanceGrowsMonotonicallyAlongImageRadii) {
   for (const HyperbolicMirrorParameters& p : AllSetups()) {
     const HyperbolicMirrorCamera camera(p);
     const Eigen::Vector2d centre = ApexPixel(camera);
-    for (double phi = 0.0; phi < 2.0 * kPi; phi += kPi / 8.0) {
+    for (double phi = 0.0; phi < 2.0 * common::kPi; phi += common::kPi / 8.0) {
       const Eigen::Vector2d direction(std::cos(phi), std::sin(phi));
       double previous = -1.0;
       int valid = 0;
@@ -407,7 +407,7 @@ TEST(HyperbolicMirrorCameraTest, PixelFootprintMatchesTheSeedsPrecisionStatement
     double radial_worst = 0.0;
     double radial_best = 1e9;
     double tangential = 0.0;
-    for (double a = 0.0; a < 2.0 * kPi; a += kPi / 6.0) {
+    for (double a = 0.0; a < 2.0 * common::kPi; a += common::kPi / 6.0) {
       const Eigen::Vector2d ground(c.distance * std::cos(a), c.distance * std::sin(a));
       Eigen::Vector2d pixel;
       ASSERT_EQ(camera.ProjectGroundPoint(ground, &pixel), ProjectionStatus::kOk);
@@ -455,7 +455,7 @@ TEST(HyperbolicMirrorCameraTest, ProjectJacobianMatchesCentralDifferences) {
     const HyperbolicMirrorCamera camera(p);
     std::mt19937 rng(3);
     std::uniform_real_distribution<double> distance(0.3, 4.0);
-    std::uniform_real_distribution<double> azimuth(-kPi, kPi);
+    std::uniform_real_distribution<double> azimuth(-common::kPi, common::kPi);
     std::uniform_real_distribution<double> height(0.0, 0.3);
     int checked = 0;
     for (int i = 0; i < 40; ++i) {
@@ -488,7 +488,7 @@ TEST(HyperbolicMirrorCameraTest, BackProjectJacobiansMatchCentralDifferences) {
     const HyperbolicMirrorCamera camera(p);
     std::mt19937 rng(5);
     std::uniform_real_distribution<double> radius(0.0, 260.0);
-    std::uniform_real_distribution<double> azimuth(-kPi, kPi);
+    std::uniform_real_distribution<double> azimuth(-common::kPi, common::kPi);
     const Eigen::Vector2d centre = ApexPixel(camera);
     int checked = 0;
     for (int i = 0; i < 60; ++i) {

@@ -10,6 +10,7 @@
 #include <random>
 #include <stdexcept>
 
+#include "common/units.h"
 #include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::vision {
@@ -17,8 +18,6 @@ namespace {
 
 using ::testing::ContainsRegex;
 using ::testing::IsEmpty;
-
-constexpr double kPi = 3.14159265358979323846;
 
 // The default calibration, and a variant with a1 != 0 and a stronger affine part and a rim
 // radius (catadioptric-like) to exercise every term.
@@ -74,7 +73,8 @@ TEST_P(ScaramuzzaVariantTest, FittedInverseWithinTolerance) {
   double max_pixel_error = 0.0;
   const Eigen::Vector2d centre(p.u0, p.v0);
   for (int k = 0; k < 8; ++k) {
-    const Eigen::Vector2d direction(std::cos(k * kPi / 4.0 + 0.1), std::sin(k * kPi / 4.0 + 0.1));
+    const Eigen::Vector2d direction(std::cos(k * common::kPi / 4.0 + 0.1),
+                                    std::sin(k * common::kPi / 4.0 + 0.1));
     for (int i = 0; i <= 20000; ++i) {
       const Eigen::Vector2d pixel = centre + direction * (0.99 * fit.max_radius_px * i / 20000.0);
       Ray ray;
@@ -90,7 +90,7 @@ TEST_P(ScaramuzzaVariantTest, FittedInverseWithinTolerance) {
       "variant %d: degree %d, fit max error %.3g px (construction), %.3g px along the "
       "radius, %.3g px through Project; rho_max %.1f px, phi_max %.1f deg\n",
       GetParam(), fit.degree, fit.max_error_px, max_radius_error, max_pixel_error,
-      fit.max_radius_px, fit.max_angle * 180.0 / kPi);
+      fit.max_radius_px, fit.max_angle * 180.0 / common::kPi);
 }
 
 TEST_P(ScaramuzzaVariantTest, RefinedProjectionRoundTripsToMicroPixels) {

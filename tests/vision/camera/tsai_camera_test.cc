@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "common/units.h"
 #include "tests/utilities/allocation_counter.h"
 #include "vision/camera/pinhole_camera.h"
 
@@ -20,10 +21,8 @@ namespace {
 using ::testing::ContainsRegex;
 using ::testing::IsEmpty;
 
-constexpr double kPi = 3.14159265358979323846;
-
 double AngleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  return std::atan2(a.cross(b).norm(), a.dot(b)) * 180.0 / kPi;
+  return std::atan2(a.cross(b).norm(), a.dot(b)) * 180.0 / common::kPi;
 }
 
 struct NamedParameters {

@@ -13,6 +13,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "common/units.h"
 #include "tests/utilities/allocation_counter.h"
 
 namespace kinevis::vision {
@@ -20,8 +21,6 @@ namespace {
 
 using ::testing::ContainsRegex;
 using ::testing::IsEmpty;
-
-constexpr double kPi = 3.14159265358979323846;
 
 UnifiedParameters Parameters(double xi, bool distorted) {
   UnifiedParameters p;
@@ -40,13 +39,13 @@ UnifiedParameters Parameters(double xi, bool distorted) {
 // Largest angle from +z of the directions the model images, with a margin (rad).
 double MaxAngle(double xi, double margin) {
   const double limit = xi <= 1.0 ? std::acos(-xi) : std::acos(-1.0 / xi);
-  return std::min(limit, kPi) - margin;
+  return std::min(limit, common::kPi) - margin;
 }
 
 // Random point whose direction makes an angle <= max_angle with +z, at 0.2..10 m.
 Eigen::Vector3d RandomPoint(double max_angle, std::mt19937* rng) {
   std::uniform_real_distribution<double> cos_angle(std::cos(max_angle), 1.0);
-  std::uniform_real_distribution<double> azimuth(-kPi, kPi);
+  std::uniform_real_distribution<double> azimuth(-common::kPi, common::kPi);
   std::uniform_real_distribution<double> range(0.2, 10.0);
   const double c = cos_angle(*rng);
   const double s = std::sqrt(1.0 - c * c);
@@ -73,7 +72,7 @@ TEST_P(UnifiedXiTest, ProjectMatchesOpenCvOmnidir) {
     std::mt19937 rng(1234);
     std::vector<cv::Vec3d> object;
     // ξ = 0 is a pinhole: keep within 70° of the axis so the distortion stays monotonic.
-    const double max_angle = xi == 0.0 ? 70.0 * kPi / 180.0 : MaxAngle(xi, 0.1);
+    const double max_angle = xi == 0.0 ? 70.0 * common::kPi / 180.0 : MaxAngle(xi, 0.1);
     while (object.size() < 500) {
       const Eigen::Vector3d q = RandomPoint(max_angle, &rng);
       if (!NearImage(camera, q)) continue;
@@ -101,7 +100,7 @@ TEST_P(UnifiedXiTest, ProjectJacobianMatchesCentralDifferences) {
   const double xi = GetParam();
   const UnifiedCamera camera(Parameters(xi, true));
   std::mt19937 rng(77);
-  const double max_angle = xi == 0.0 ? 70.0 * kPi / 180.0 : MaxAngle(xi, 0.1);
+  const double max_angle = xi == 0.0 ? 70.0 * common::kPi / 180.0 : MaxAngle(xi, 0.1);
   for (int i = 0; i < 200; ++i) {
     const Eigen::Vector3d q = RandomPoint(max_angle, &rng);
     Eigen::Vector2d pixel;
@@ -123,7 +122,7 @@ TEST_P(UnifiedXiTest, BackProjectInvertsProjectWithJacobian) {
   const double xi = GetParam();
   const UnifiedCamera camera(Parameters(xi, true));
   std::mt19937 rng(99);
-  const double max_angle = xi == 0.0 ? 70.0 * kPi / 180.0 : MaxAngle(xi, 0.1);
+  const double max_angle = xi == 0.0 ? 70.0 * common::kPi / 180.0 : MaxAngle(xi, 0.1);
   double max_pixel_error = 0.0, max_direction_error = 0.0;
   for (int i = 0; i < 300; ++i) {
     const Eigen::Vector3d q = RandomPoint(max_angle, &rng);
@@ -166,7 +165,7 @@ TEST_P(UnifiedXiTest, LiftAgreesWithOpenCvUndistortPoints) {
   const UnifiedParameters p = Parameters(xi, true);
   const UnifiedCamera camera(p);
   std::mt19937 rng(5);
-  const double max_angle = 75.0 * kPi / 180.0;
+  const double max_angle = 75.0 * common::kPi / 180.0;
   std::vector<cv::Vec2d> pixels;
   while (pixels.size() < 100) {
     Eigen::Vector2d pixel;

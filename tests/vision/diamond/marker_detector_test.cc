@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "common/units.h"
 #include "robots/diamond/diamond_model.h"
 #include "vision/camera/camera_file.h"
 #include "vision/camera/pinhole_camera.h"
@@ -19,8 +20,6 @@ namespace kinevis::vision {
 namespace {
 
 using ::testing::HasSubstr;
-
-constexpr double kDeg = M_PI / 180.0;
 
 // The seed's camera (seed 001 §V-A: PS3 Eye, 1280×640, 6 mm lens; 6 µm pixels assumed, as in
 // diamond_marker_scene_test.cc): f = 1000 px.
@@ -36,7 +35,7 @@ std::unique_ptr<CameraModel> SeedCamera() {
 
 struct Frame {
   std::vector<uint8_t> pixels;
-  render::ImageView8 view;
+  vision::ImageView8 view;
   Eigen::Vector2d truth = Eigen::Vector2d::Zero();  // projection of T
 };
 
@@ -53,7 +52,7 @@ Frame Render(render::Renderer& renderer, const Eigen::Vector2d& task, uint64_t f
   const render::DiamondMarkerScene scene(p);
   Frame f;
   f.pixels.assign(static_cast<size_t>(camera.width()) * camera.height(), 0);
-  f.view = render::ImageView8{f.pixels.data(), camera.width(), camera.height(),
+  f.view = vision::ImageView8{f.pixels.data(), camera.width(), camera.height(),
                               static_cast<size_t>(camera.width())};
   renderer.Render(scene, frame_index, f.view);
   EXPECT_EQ(camera.Project(scene.p_C_T(), &f.truth), ProjectionStatus::kOk);
@@ -73,7 +72,7 @@ std::vector<Eigen::Vector2d> TaskGrid() {
   std::vector<Eigen::Vector2d> points;
   for (double phi = 70; phi <= 110; phi += 10) {
     for (double gamma = 35; gamma <= 55; gamma += 5) {
-      points.emplace_back(phi * kDeg, gamma * kDeg);
+      points.emplace_back(phi * common::kDeg, gamma * common::kDeg);
     }
   }
   return points;
@@ -154,7 +153,7 @@ TEST(MarkerDetectorTest, StaysSubPixelWithStrongNoise) {
 TEST(MarkerDetectorTest, SearchesAroundThePredictionOnly) {
   const auto camera = SeedCamera();
   render::Renderer renderer(*camera, Options(16, 1.0));
-  const Frame f = Render(renderer, {95 * kDeg, 40 * kDeg}, 1);
+  const Frame f = Render(renderer, {95 * common::kDeg, 40 * common::kDeg}, 1);
   MarkerDetector detector;
   const Eigen::Vector2d near = f.truth + Eigen::Vector2d(18, -12);
   const MarkerDetection d = detector.Detect(f.view, &near);
@@ -176,15 +175,15 @@ TEST(MarkerDetectorTest, ReportsNoMarkerInAnImageWithoutOne) {
   const auto camera = SeedCamera();
   // Background and noise only: the rendered frame's noise bits without the marker.
   render::Renderer renderer(*camera, Options(4, 2.0));
-  Frame f = Render(renderer, {90 * kDeg, 45 * kDeg}, 3);
+  Frame f = Render(renderer, {90 * common::kDeg, 45 * common::kDeg}, 3);
   for (uint8_t& p : f.pixels) p = static_cast<uint8_t>(5 + (p & 3));
   MarkerDetector detector;
   EXPECT_FALSE(detector.Detect(f.view).found());
   std::vector<uint8_t> flat(static_cast<size_t>(camera->width()) * camera->height(), 5);
-  const render::ImageView8 v{flat.data(), camera->width(), camera->height(),
+  const vision::ImageView8 v{flat.data(), camera->width(), camera->height(),
                              static_cast<size_t>(camera->width())};
   EXPECT_EQ(detector.Detect(v).status, MarkerStatus::kNoCorner);
-  EXPECT_EQ(detector.Detect(render::ImageView8{}).status, MarkerStatus::kInvalidImage);
+  EXPECT_EQ(detector.Detect(vision::ImageView8{}).status, MarkerStatus::kInvalidImage);
 }
 
 // Occlusion: a tool or a hand over the plate. Over an outer part (the centre and the ring clear)
@@ -196,7 +195,7 @@ TEST(MarkerDetectorTest, PartialOcclusionAwayFromTheCentreIsToleratedAcrossItIsN
   MarkerDetector detector;
   const int w = camera->width();
   {
-    Frame f = Render(renderer, {85 * kDeg, 45 * kDeg}, 4);
+    Frame f = Render(renderer, {85 * common::kDeg, 45 * common::kDeg}, 4);
     // Occluder (grey 120) over the plate's right part, from 8 px right of the centre.
     const int u0 = static_cast<int>(f.truth.x()) + 8;
     for (int v = 0; v < camera->height(); ++v) {
@@ -207,7 +206,7 @@ TEST(MarkerDetectorTest, PartialOcclusionAwayFromTheCentreIsToleratedAcrossItIsN
     EXPECT_LT((d.pixel - f.truth).norm(), 0.08);
   }
   for (const uint8_t grey : {200, 120, 3}) {
-    Frame f = Render(renderer, {85 * kDeg, 45 * kDeg}, 5);
+    Frame f = Render(renderer, {85 * common::kDeg, 45 * common::kDeg}, 5);
     // An occluder over the upper half of the plate, 1 px past the centre.
     const int uc = static_cast<int>(std::lround(f.truth.x()));
     const int vc = static_cast<int>(std::lround(f.truth.y()));
@@ -234,11 +233,11 @@ TEST(MarkerDetectorTest, MarkerAtOrBeyondTheImageBorderIsNotReported) {
     p.cx = 639.5;
     const PinholeBrownCamera centred(p);
     render::Renderer r0(centred, Options(4, 0.0));
-    const Frame f0 = Render(r0, {90 * kDeg, 45 * kDeg}, 6);
+    const Frame f0 = Render(r0, {90 * common::kDeg, 45 * common::kDeg}, 6);
     p.cx = 639.5 - (f0.truth.x() - inside);
     const PinholeBrownCamera shifted(p);
     render::Renderer r1(shifted, Options(4, 1.0));
-    const Frame f = Render(r1, {90 * kDeg, 45 * kDeg}, 6);
+    const Frame f = Render(r1, {90 * common::kDeg, 45 * common::kDeg}, 6);
     ASSERT_NEAR(f.truth.x(), inside, 1e-6);
     const MarkerDetection d = detector.Detect(f.view);
     EXPECT_FALSE(d.found()) << "centre at u = " << inside << ": " << d.pixel.transpose();
@@ -249,7 +248,7 @@ TEST(MarkerDetectorTest, AWeakMarkerIsNotFound) {
   const auto camera = SeedCamera();
   // White quadrants at 0.12 against black 0.05: ~18 grey levels, below min_contrast.
   render::Renderer renderer(*camera, Options(4, 1.0));
-  const Frame f = Render(renderer, {90 * kDeg, 45 * kDeg}, 8, 0.12);
+  const Frame f = Render(renderer, {90 * common::kDeg, 45 * common::kDeg}, 8, 0.12);
   MarkerDetector detector;
   const MarkerDetection d = detector.Detect(f.view);
   EXPECT_FALSE(d.found());

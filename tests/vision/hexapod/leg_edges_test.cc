@@ -65,8 +65,8 @@ Eigen::Isometry3d TestPose() {
 
 struct Frame {
   std::vector<uint8_t> pixels;
-  render::ImageView8 view() {
-    return render::ImageView8{pixels.data(), width, height, static_cast<size_t>(width)};
+  vision::ImageView8 view() {
+    return vision::ImageView8{pixels.data(), width, height, static_cast<size_t>(width)};
   }
   int width = 0, height = 0;
 };
@@ -208,7 +208,7 @@ TEST(LegEdgeOptionsTest, ValidateNamesEveryBadField) {
 TEST(ObserveLegsTest, BadInputsThrowClearMessages) {
   const PinholeBrownCamera camera = Perspective1024();
   std::vector<uint8_t> pixels(1024 * 768, 0);
-  const render::ImageView8 image{pixels.data(), 1024, 768, 1024};
+  const vision::ImageView8 image{pixels.data(), 1024, 768, 1024};
   const auto predictions =
       PredictLegs(robots::HexapodModel::Default(), TestPose(), PerspectiveX_CB());
   LegEdgeOptions bad;
@@ -223,7 +223,7 @@ TEST(ObserveLegsTest, BadInputsThrowClearMessages) {
         }
       },
       std::invalid_argument);
-  const render::ImageView8 small{pixels.data(), 640, 480, 640};
+  const vision::ImageView8 small{pixels.data(), 640, 480, 640};
   try {
     ObserveLegs(small, camera, predictions);
     FAIL() << "no exception";
@@ -233,7 +233,7 @@ TEST(ObserveLegsTest, BadInputsThrowClearMessages) {
   }
   const auto mirror = BuiltinCameraModel("hyperbolic-mirror-4mm");
   std::vector<uint8_t> mirror_pixels(static_cast<size_t>(mirror->width()) * mirror->height(), 0);
-  const render::ImageView8 mirror_image{mirror_pixels.data(), mirror->width(), mirror->height(),
+  const vision::ImageView8 mirror_image{mirror_pixels.data(), mirror->width(), mirror->height(),
                                         static_cast<size_t>(mirror->width())};
   try {
     ObserveLegs(mirror_image, *mirror, predictions);
@@ -249,7 +249,7 @@ TEST(ObserveLegsTest, BadInputsThrowClearMessages) {
 TEST(ObserveLegsTest, BadPredictionIsNotVisibleWithReason) {
   const PinholeBrownCamera camera = Perspective1024();
   std::vector<uint8_t> pixels(1024 * 768, 40);
-  const render::ImageView8 image{pixels.data(), 1024, 768, 1024};
+  const vision::ImageView8 image{pixels.data(), 1024, 768, 1024};
   auto predictions = PredictLegs(robots::HexapodModel::Default(), TestPose(), PerspectiveX_CB());
   predictions[2].radius = -0.01;
   predictions[4].p_C_B = predictions[4].p_C_A;
@@ -265,7 +265,7 @@ TEST(ObserveLegsTest, BadPredictionIsNotVisibleWithReason) {
 TEST(ObserveLegsTest, BlackImageGivesSixNotVisible) {
   const PinholeBrownCamera camera = Perspective1024();
   std::vector<uint8_t> pixels(1024 * 768, 0);
-  const render::ImageView8 image{pixels.data(), 1024, 768, 1024};
+  const vision::ImageView8 image{pixels.data(), 1024, 768, 1024};
   const auto obs = ObserveLegs(
       image, camera, PredictLegs(robots::HexapodModel::Default(), TestPose(), PerspectiveX_CB()));
   for (int j = 0; j < kLegs; ++j) {
@@ -812,7 +812,7 @@ TEST(ObserveLegsTest, DoesNotAllocateWithAWorkspace) {
   Frame frame = RenderFrame(camera, scene);
   const auto predictions = PredictLegs(model, TestPose(), PerspectiveX_CB());
   std::vector<uint8_t> black(frame.pixels.size(), 0);
-  const render::ImageView8 black_view{black.data(), frame.width, frame.height,
+  const vision::ImageView8 black_view{black.data(), frame.width, frame.height,
                                       static_cast<size_t>(frame.width)};
   LegEdgeWorkspace workspace;
   const LegEdgeOptions options;

@@ -34,8 +34,8 @@ struct Frame {
   std::vector<uint8_t> pixels;
   int width = 0;
   int height = 0;
-  render::ImageView8 view() {
-    return render::ImageView8{pixels.data(), width, height, static_cast<size_t>(width)};
+  vision::ImageView8 view() {
+    return vision::ImageView8{pixels.data(), width, height, static_cast<size_t>(width)};
   }
 };
 
@@ -601,17 +601,17 @@ TEST(LaserStripes, BadImagesThrow) {
   LaserStripeExtractor extractor{LaserStripeOptions{}};
   LaserStripes result;
   std::vector<uint8_t> pixels(100 * 50, 0);
-  EXPECT_THROW(extractor.Extract(render::ImageView8{nullptr, 100, 50, 100}, &result),
+  EXPECT_THROW(extractor.Extract(vision::ImageView8{nullptr, 100, 50, 100}, &result),
                std::invalid_argument);
   EXPECT_THAT(
       [&] {
-        extractor.Extract(render::ImageView8{pixels.data(), 100, 50, 99}, &result);
+        extractor.Extract(vision::ImageView8{pixels.data(), 100, 50, 99}, &result);
       },
       ::testing::ThrowsMessage<std::invalid_argument>(::testing::HasSubstr("stride 99")));
-  EXPECT_THROW(extractor.Extract(render::ImageView8{pixels.data(), 0, 50, 100}, &result),
+  EXPECT_THROW(extractor.Extract(vision::ImageView8{pixels.data(), 0, 50, 100}, &result),
                std::invalid_argument);
   // A tiny black image is fine: nothing found.
-  extractor.Extract(render::ImageView8{pixels.data(), 100, 50, 100}, &result);
+  extractor.Extract(vision::ImageView8{pixels.data(), 100, 50, 100}, &result);
   EXPECT_TRUE(result.stripe(Stripe::kRotating).points.empty());
   EXPECT_EQ(result.stripe(Stripe::kRotating).counts.lines_searched, 100);
   EXPECT_EQ(result.stripe(Stripe::kFixed).counts.lines_without_candidate, 50);

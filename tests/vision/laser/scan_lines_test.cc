@@ -30,8 +30,8 @@ render::Renderer& Renderer() {
 
 struct Frame {
   std::vector<uint8_t> pixels;
-  render::ImageView8 view() {
-    return render::ImageView8{pixels.data(), Camera().width(), Camera().height(),
+  vision::ImageView8 view() {
+    return vision::ImageView8{pixels.data(), Camera().width(), Camera().height(),
                               static_cast<size_t>(Camera().width())};
   }
 };
@@ -135,7 +135,7 @@ TEST(ScanLineTriangulator, ReportsWhatWentWrong) {
   std::vector<uint8_t> small(100 * 100, 0);
   EXPECT_THAT(
       [&] {
-        triangulator.Process(render::ImageView8{small.data(), 100, 100, 100}, &r);
+        triangulator.Process(vision::ImageView8{small.data(), 100, 100, 100}, &r);
       },
       ::testing::ThrowsMessage<std::invalid_argument>(::testing::HasSubstr("100 x 100")));
   ScanLineOptions bad;

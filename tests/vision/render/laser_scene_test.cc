@@ -562,13 +562,16 @@ TEST(LaserScene, DotGridDarkensTheBoardInsideTheDots) {
   // The grid must fit the board, and only the board has one.
   LaserSceneParameters small = p;
   small.half_extent = Eigen::Vector2d(0.1, 0.15);
-  EXPECT_THAT(small.Validate(), ::testing::ContainsRegex("dots \\(x reach\\) = 0.111"));
+  EXPECT_THAT(small.Validate(),
+              ::testing::ContainsRegex("dots \\(x reach\\): must be <= half_extent.x \\(the grid "
+                                       "must fit the board\\), got 0.111"));
   LaserSceneParameters blade = p;
   blade.surface = LaserSurfaceKind::kBlade;
-  EXPECT_THAT(blade.Validate(), ::testing::ContainsRegex("dot_grid = 1 \\(only on the board"));
+  EXPECT_THAT(blade.Validate(), ::testing::ContainsRegex("dot_grid: only on the board"));
   LaserSceneParameters bad = p;
   bad.dots.dot_radius = 0.02;
-  EXPECT_THAT(bad.Validate(), ::testing::ContainsRegex("dots.dot_radius = 0.02"));
+  EXPECT_THAT(bad.Validate(), ::testing::ContainsRegex(
+                                  "dots.dot_radius: must be in \\(0, pitch / 2\\) m, got 0.02"));
 }
 
 // TraceBatch (issue 5's two-rays-at-a-time path) gives exactly Trace()'s hits, bit for bit: every

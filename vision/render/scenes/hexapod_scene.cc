@@ -10,6 +10,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/check.h"
 #include "vision/render/primitives.h"
 
 namespace kinevis::vision::render {
@@ -48,10 +49,8 @@ Eigen::Isometry3d CameraLookingAt(const Eigen::Vector3d& eye_W, const Eigen::Vec
                                   const Eigen::Vector3d& up_W) {
   const Eigen::Vector3d z = (target_W - eye_W).normalized();
   const Eigen::Vector3d x = z.cross(up_W);  // image right = forward × up (y is down)
-  if (!(x.norm() > 1e-12) || !z.allFinite()) {
-    std::fprintf(stderr, "%s:%d: CameraLookingAt: degenerate eye/target/up\n", __FILE__, __LINE__);
-    std::abort();
-  }
+  KINEVIS_DEMAND_MSG(x.norm() > 1e-12 && z.allFinite(),
+                     "CameraLookingAt: degenerate eye/target/up");
   Eigen::Isometry3d X_WC = Eigen::Isometry3d::Identity();
   X_WC.linear().col(0) = x.normalized();
   X_WC.linear().col(2) = z;

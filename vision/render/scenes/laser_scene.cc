@@ -9,21 +9,11 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/config_error.h"
 #include "vision/render/primitives.h"
 
 namespace kinevis::vision::render {
 namespace {
-
-class Problems {
- public:
-  void Add(const std::string& name, double value, const char* rule) {
-    out_ << (out_.tellp() > 0 ? "; " : "") << name << " = " << value << " (" << rule << ")";
-  }
-  std::string str() const { return out_.str(); }
-
- private:
-  std::ostringstream out_;
-};
 
 bool InUnit(double x) { return std::isfinite(x) && x >= 0.0 && x <= 1.0; }
 
@@ -85,16 +75,16 @@ LaserPlane LaserScannerGeometry::FixedPlane() const {
 }
 
 std::string LaserScannerGeometry::Validate() const {
-  Problems bad;
-  if (!std::isfinite(rotating_b_y)) bad.Add("scanner.rotating_b_y", rotating_b_y, "finite");
-  if (!std::isfinite(rotating_d_y)) bad.Add("scanner.rotating_d_y", rotating_d_y, "finite");
+  common::Problems bad;
+  if (!std::isfinite(rotating_b_y)) bad.Add("scanner.rotating_b_y", rotating_b_y, "must be finite");
+  if (!std::isfinite(rotating_d_y)) bad.Add("scanner.rotating_d_y", rotating_d_y, "must be finite");
   if (!std::isfinite(fixed_b_x_prime)) {
-    bad.Add("scanner.fixed_b_x_prime", fixed_b_x_prime, "finite");
+    bad.Add("scanner.fixed_b_x_prime", fixed_b_x_prime, "must be finite");
   }
   if (!std::isfinite(fixed_cot_theta_x)) {
-    bad.Add("scanner.fixed_cot_theta_x", fixed_cot_theta_x, "finite");
+    bad.Add("scanner.fixed_cot_theta_x", fixed_cot_theta_x, "must be finite");
   }
-  return bad.str();
+  return bad.Message();
 }
 
 double DotGrid::Reflectance(double x_S, double y_S) const {
@@ -108,18 +98,18 @@ double DotGrid::Reflectance(double x_S, double y_S) const {
 }
 
 std::string DotGrid::Validate(const std::string& prefix) const {
-  Problems bad;
-  if (!(rows >= 2 && rows <= 100)) bad.Add(prefix + "rows", rows, "in [2, 100]");
-  if (!(cols >= 2 && cols <= 100)) bad.Add(prefix + "cols", cols, "in [2, 100]");
-  if (!(std::isfinite(pitch) && pitch > 0.0)) bad.Add(prefix + "pitch", pitch, "> 0 m");
+  common::Problems bad;
+  if (!(rows >= 2 && rows <= 100)) bad.Add(prefix + "rows", rows, "must be in [2, 100]");
+  if (!(cols >= 2 && cols <= 100)) bad.Add(prefix + "cols", cols, "must be in [2, 100]");
+  if (!(std::isfinite(pitch) && pitch > 0.0)) bad.Add(prefix + "pitch", pitch, "must be > 0 m");
   if (!(std::isfinite(dot_radius) && dot_radius > 0.0 && dot_radius < 0.5 * pitch)) {
-    bad.Add(prefix + "dot_radius", dot_radius, "in (0, pitch / 2) m");
+    bad.Add(prefix + "dot_radius", dot_radius, "must be in (0, pitch / 2) m");
   }
   if (!(std::isfinite(albedo) && albedo >= 0.0 && albedo < 1.0)) {
-    bad.Add(prefix + "albedo", albedo, "in [0, 1)");
+    bad.Add(prefix + "albedo", albedo, "must be in [0, 1)");
   }
-  if (!centre_S.allFinite()) bad.Add(prefix + "centre_S", centre_S.x(), "finite");
-  return bad.str();
+  if (!centre_S.allFinite()) bad.Add(prefix + "centre_S", centre_S.x(), "must be finite");
+  return bad.Message();
 }
 
 bool LaserHit::Lit(LaserId id) const {
@@ -129,38 +119,39 @@ bool LaserHit::Lit(LaserId id) const {
 }
 
 std::string LaserSceneParameters::Validate() const {
-  Problems bad;
+  common::Problems bad;
   const std::string scanner_problems = scanner.Validate();
   std::string message = scanner_problems;
   if (!std::isfinite(rotating_cot_theta_y)) {
-    bad.Add("rotating_cot_theta_y", rotating_cot_theta_y, "finite");
+    bad.Add("rotating_cot_theta_y", rotating_cot_theta_y, "must be finite");
   }
-  if (!X_CS.matrix().allFinite()) bad.Add("X_CS", X_CS.translation().norm(), "finite");
+  if (!X_CS.matrix().allFinite()) bad.Add("X_CS", X_CS.translation().norm(), "must be finite");
   if (!(half_extent.allFinite() && half_extent.minCoeff() > 0.0)) {
-    bad.Add("half_extent", half_extent.minCoeff(), "both > 0");
+    bad.Add("half_extent", half_extent.minCoeff(), "must be both > 0");
   }
   const double curvatures[3] = {curvature_xx, curvature_yy, curvature_xy};
   const char* curvature_names[3] = {"curvature_xx", "curvature_yy", "curvature_xy"};
   for (int i = 0; i < 3; ++i) {
     if (!(std::isfinite(curvatures[i]) && std::abs(curvatures[i]) <= 20.0)) {
-      bad.Add(curvature_names[i], curvatures[i], "|.| <= 20 1/m");
+      bad.Add(curvature_names[i], curvatures[i], "must be |.| <= 20 1/m");
     }
   }
-  if (pits.size() > 64) bad.Add("pits.size()", static_cast<double>(pits.size()), "<= 64");
+  if (pits.size() > 64) bad.Add("pits.size()", static_cast<double>(pits.size()), "must be <= 64");
   for (size_t k = 0; k < pits.size(); ++k) {
     const std::string name = "pits[" + std::to_string(k) + "]";
-    if (!pits[k].centre_S.allFinite()) bad.Add(name + ".centre_S", pits[k].centre_S.x(), "finite");
+    if (!pits[k].centre_S.allFinite())
+      bad.Add(name + ".centre_S", pits[k].centre_S.x(), "must be finite");
     if (!(std::isfinite(pits[k].depth) && pits[k].depth > 0.0 && pits[k].depth < 0.05)) {
-      bad.Add(name + ".depth", pits[k].depth, "in (0, 0.05) m");
+      bad.Add(name + ".depth", pits[k].depth, "must be in (0, 0.05) m");
     }
     if (!(std::isfinite(pits[k].sigma) && pits[k].sigma >= 1e-4 && pits[k].sigma < 0.1)) {
-      bad.Add(name + ".sigma", pits[k].sigma, "in [1e-4, 0.1) m");
+      bad.Add(name + ".sigma", pits[k].sigma, "must be in [1e-4, 0.1) m");
     }
   }
-  if (!gauge_centre_S.allFinite()) bad.Add("gauge_centre_S", gauge_centre_S.x(), "finite");
-  if (!std::isfinite(gauge_heading)) bad.Add("gauge_heading", gauge_heading, "finite");
+  if (!gauge_centre_S.allFinite()) bad.Add("gauge_centre_S", gauge_centre_S.x(), "must be finite");
+  if (!std::isfinite(gauge_heading)) bad.Add("gauge_heading", gauge_heading, "must be finite");
   if (!(gauge_size.allFinite() && gauge_size.minCoeff() > 0.0)) {
-    bad.Add("gauge_size", gauge_size.minCoeff(), "all > 0");
+    bad.Add("gauge_size", gauge_size.minCoeff(), "must be all > 0");
   }
   if (dot_grid) {
     const std::string grid = dots.Validate();
@@ -173,23 +164,25 @@ std::string LaserSceneParameters::Validate() const {
       const double y_reach =
           std::abs(dots.centre_S.y()) + 0.5 * (dots.rows - 1) * dots.pitch + dots.dot_radius;
       if (!(x_reach <= half_extent.x())) {
-        bad.Add("dots (x reach)", x_reach, "the grid must fit the board: <= half_extent.x");
+        bad.Add("dots (x reach)", x_reach,
+                "must be <= half_extent.x (the grid must fit the board)");
       }
       if (!(y_reach <= half_extent.y())) {
-        bad.Add("dots (y reach)", y_reach, "the grid must fit the board: <= half_extent.y");
+        bad.Add("dots (y reach)", y_reach,
+                "must be <= half_extent.y (the grid must fit the board)");
       }
     }
     if (surface != LaserSurfaceKind::kBoard) {
-      bad.Add("dot_grid", 1, "only on the board (surface kBoard)");
+      bad.Add("dot_grid: only on the board (surface kBoard)");
     }
   }
-  if (!InUnit(ambient)) bad.Add("ambient", ambient, "in [0, 1]");
-  if (!InUnit(background)) bad.Add("background", background, "in [0, 1]");
-  if (!InUnit(laser_peak)) bad.Add("laser_peak", laser_peak, "in [0, 1]");
+  if (!InUnit(ambient)) bad.Add("ambient", ambient, "must be in [0, 1]");
+  if (!InUnit(background)) bad.Add("background", background, "must be in [0, 1]");
+  if (!InUnit(laser_peak)) bad.Add("laser_peak", laser_peak, "must be in [0, 1]");
   if (!(std::isfinite(stripe_sigma) && stripe_sigma >= 0.05e-3 && stripe_sigma <= 2e-3)) {
-    bad.Add("stripe_sigma", stripe_sigma, "in [5e-5, 2e-3] m");
+    bad.Add("stripe_sigma", stripe_sigma, "must be in [5e-5, 2e-3] m");
   }
-  const std::string own = bad.str();
+  const std::string own = bad.Message();
   if (!own.empty()) message += (message.empty() ? "" : "; ") + own;
   return message;
 }

@@ -8,21 +8,11 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/config_error.h"
 #include "vision/render/primitives.h"
 
 namespace kinevis::vision::render {
 namespace {
-
-class Problems {
- public:
-  void Add(const char* name, double value, const char* rule) {
-    out_ << (out_.tellp() > 0 ? "; " : "") << name << " = " << value << " (" << rule << ")";
-  }
-  std::string str() const { return out_.str(); }
-
- private:
-  std::ostringstream out_;
-};
 
 double SegmentDistance(const Eigen::Vector2d& p, const Eigen::Vector4d& s) {
   const Eigen::Vector2d a = s.head<2>(), b = s.tail<2>();
@@ -83,7 +73,7 @@ double IntersectCylinderAlongY(const Ray& ray, const Eigen::Vector3d& a, double 
 }  // namespace
 
 std::string SoccerFieldSceneParameters::Validate() const {
-  Problems bad;
+  common::Problems bad;
   auto positive = [&bad](const char* name, double v) {
     if (!(std::isfinite(v) && v > 0.0)) bad.Add(name, v, "must be > 0");
   };
@@ -133,7 +123,7 @@ std::string SoccerFieldSceneParameters::Validate() const {
       bad.Add(names[i], radiances[i], "must be in [0, 1]");
     }
   }
-  return bad.str();
+  return bad.Message();
 }
 
 SoccerFieldScene::SoccerFieldScene(const HyperbolicMirrorCamera& camera,

@@ -11,9 +11,15 @@
 #include <condition_variable>
 #include <mutex>
 
-namespace kinevis::hal {
+namespace kinevis::common {
 
 using Duration = std::chrono::nanoseconds;
+
+// Seconds as a double, and back (truncated to whole nanoseconds).
+inline double ToSeconds(Duration d) { return std::chrono::duration<double>(d).count(); }
+inline Duration FromSeconds(double s) {
+  return std::chrono::duration_cast<Duration>(std::chrono::duration<double>(s));
+}
 
 class Clock {
  public:
@@ -55,4 +61,4 @@ class SimulatedClock final : public Clock {
   Duration now_;
 };
 
-}  // namespace kinevis::hal
+}  // namespace kinevis::common

@@ -1,6 +1,6 @@
-#include "hal/drive/motor_drive.h"
+#include "common/lifecycle.h"
 
-namespace kinevis::hal {
+namespace kinevis::common {
 
 const char* ToString(DeviceLifecycle lifecycle) {
   switch (lifecycle) {
@@ -16,4 +16,4 @@ const char* ToString(DeviceLifecycle lifecycle) {
   return "?";
 }
 
-}  // namespace kinevis::hal
+}  // namespace kinevis::common

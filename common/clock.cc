@@ -1,11 +1,11 @@
-#include "hal/common/clock.h"
+#include "common/clock.h"
 
 #include <time.h>
 
 #include <cerrno>
 #include <stdexcept>
 
-namespace kinevis::hal {
+namespace kinevis::common {
 
 SteadyClock& SteadyClock::Instance() {
   static SteadyClock clock;
@@ -64,4 +64,4 @@ void SimulatedClock::AdvanceTo(Duration t) {
   cv_.notify_all();
 }
 
-}  // namespace kinevis::hal
+}  // namespace kinevis::common
