@@ -1,6 +1,7 @@
 #include "vision/laser/laser_stripes.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
