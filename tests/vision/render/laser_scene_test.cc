@@ -492,9 +492,11 @@ TEST(LaserScene, BadParametersAreNamedInOneMessage) {
   p.stripe_sigma = 0.01;
   p.pits = {{Eigen::Vector2d::Zero(), -1.0, 2e-3}};
   p.scanner.rotating_b_y = std::nan("");
-  EXPECT_THAT(p.Validate(),
-              ::testing::MatchesRegex(
-                  ".*rotating_b_y = nan.*pits\\[0\\]\\.depth = -1.*stripe_sigma = 0.01.*"));
+  EXPECT_THAT(
+      p.Validate(),
+      ::testing::MatchesRegex(
+          ".*rotating_b_y: must be finite, got nan.*pits\\[0\\]\\.depth: must be .*, got -1.*"
+          "stripe_sigma: must be .*, got 0.01"));
   EXPECT_THROW(LaserScene{p}, std::invalid_argument);
   EXPECT_EQ(LaserSceneParameters().Validate(), "");
 }

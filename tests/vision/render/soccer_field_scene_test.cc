@@ -409,8 +409,10 @@ TEST(SoccerFieldScene, BadParametersAreNamedInOneMessage) {
   p.line_width = -0.05;
   p.post_count = 12;
   p.carpet_radiance = 2.0;
-  EXPECT_THAT(p.Validate(), ::testing::MatchesRegex(
-                                ".*line_width = -0.05.*post_count = 12.*carpet_radiance = 2.*"));
+  EXPECT_THAT(p.Validate(),
+              ::testing::MatchesRegex(
+                  ".*line_width: must be > 0, got -0.05.*post_count: must be .*, got 12.*"
+                  "carpet_radiance: must be .*, got 2"));
   EXPECT_THROW(SoccerFieldScene(camera, p), std::invalid_argument);
   SoccerFieldSceneParameters tall;
   tall.body_height = 0.7;  // above the pinhole (0.57 m)
