@@ -84,8 +84,7 @@ TEST(HexapodCliTest, RecordCalibrateAndServoTheSimulatedHexapod) {
     EXPECT_LT((file.result.p_C_A[j] - X_CB * truth.p_B_A[j]).norm(), 2e-3) << "leg " << j;
   }
 
-  const std::string file_path = __FILE__;
-  const std::string root = file_path.substr(0, file_path.rfind("/tests/hil/"));
+  const std::string root = KINEVIS_SOURCE_DIR;
   const std::string log = dir + "/servo.csv";
   const ProcessResult servo =
       RunKinevis({"servo", "hexapod", "--camera", "hexapod-omni", "--calib", calib, "--target",
@@ -167,8 +166,7 @@ TEST(HexapodCliTest, DynamixelCommandsStillNeedTheirSerialPort) {
 // and its network camera, and gives a camera pose measured "by hand" (1 cm and 1° off the truth).
 TEST(HexapodCliTest, DeploymentFileDrivesAWorldInAnotherProcessLikeRealHardware) {
   const std::string dir = TempDir("deployment");
-  const std::string file = __FILE__;
-  const std::string root = file.substr(0, file.rfind("/tests/hil/"));
+  const std::string root = KINEVIS_SOURCE_DIR;
   // The world of config/hexapod-sim.yaml with a 20 mm following-error window instead of 5 mm:
   // over slcan on a pty between two processes on a loaded 2-core machine the host's CSP set-points
   // can stall for tens of milliseconds (0.08 m/s x 60 ms = 4.8 mm), which a real integrator

@@ -27,8 +27,7 @@ using testing::KinevisCliPath;
 using testing::ProcessResult;
 
 std::string ConfigPath(const std::string& name) {
-  const std::string file = __FILE__;
-  return file.substr(0, file.rfind("/tests/hil/")) + "/config/" + name;
+  return std::string(KINEVIS_SOURCE_DIR) + "/config/" + name;
 }
 
 TEST(SimCellsCliTest, AHostProcessMovesTheWeldRobotAndAnotherGrabsTheScannerFrames) {

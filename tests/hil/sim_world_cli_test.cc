@@ -110,8 +110,7 @@ TEST(SimWorldCliTest, AHostProcessMovesTheSimulatedDiamondOverRs485) {
 }
 
 TEST(SimWorldCliTest, ASecondProcessGrabsTheWorldsCameraFramesOverTheNetwork) {
-  const std::string file = __FILE__;
-  const std::string root = file.substr(0, file.rfind("/tests/hil/"));
+  const std::string root = KINEVIS_SOURCE_DIR;
   BackgroundProcess world(
       {KinevisCliPath(), "sim", "world", "hexapod", "--config", root + "/config/hexapod-sim.yaml"});
   std::string backend, camera_line;

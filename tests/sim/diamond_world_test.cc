@@ -18,10 +18,7 @@ using namespace std::chrono_literals;
 using ::testing::ContainsRegex;
 using ::testing::HasSubstr;
 
-std::string SourceDir() {
-  const std::string file = __FILE__;
-  return file.substr(0, file.rfind("/tests/sim/"));
-}
+std::string SourceDir() { return KINEVIS_SOURCE_DIR; }
 
 // The host side as the DIAMOND controller sets it up: an Rs485DriveBus on the world's pty, on
 // the world's clock (its waits step the world; the Modbus exchanges run in real time).

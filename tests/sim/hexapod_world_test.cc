@@ -22,10 +22,7 @@ using robots::Vector6d;
 using ::testing::HasSubstr;
 
 // The repository root, from this file's path (no compile definition needed).
-std::string SourceDir() {
-  const std::string file = __FILE__;
-  return file.substr(0, file.rfind("/tests/sim/"));
-}
+std::string SourceDir() { return KINEVIS_SOURCE_DIR; }
 
 std::string TestName() { return ::testing::UnitTest::GetInstance()->current_test_info()->name(); }
 

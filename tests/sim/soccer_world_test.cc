@@ -165,8 +165,7 @@ TEST(SoccerRobotWorld, TheNominalCameraMapIsOffByWhatCalibrationMustRemove) {
 }
 
 TEST(SoccerRobotWorld, TheShippedConfigHoldsTheDefaults) {
-  const std::string file = __FILE__;
-  const std::string root = file.substr(0, file.rfind("/tests/sim/"));
+  const std::string root = KINEVIS_SOURCE_DIR;
   const SoccerWorldConfig c = LoadSoccerWorldConfig(root + "/config/soccer-sim.yaml");
   const SoccerWorldConfig d;
   EXPECT_NEAR(c.camera.sensor_offset_x, d.camera.sensor_offset_x, 1e-15);

@@ -218,8 +218,7 @@ TEST(WeldCellWorld, ConfigFileSetsTheTruthScannerWorkpieceAndController) {
 }
 
 TEST(WeldCellWorld, TheShippedConfigHoldsTheDefaults) {
-  const std::string file = __FILE__;
-  const std::string root = file.substr(0, file.rfind("/tests/sim/"));
+  const std::string root = KINEVIS_SOURCE_DIR;
   const WeldCellWorldConfig c = LoadWeldCellWorldConfig(root + "/config/weld-cell-sim.yaml");
   const WeldCellWorldConfig d;
   EXPECT_THAT(c.robot_description, HasSubstr("robots/weld5/weld5.yaml"));
