@@ -99,14 +99,10 @@ std::string WeldCellWorldConfig::Validate() const {
   using common::Num;
   const std::string robot =
       robot_description.empty() ? "robot" : "robot (" + robot_description + ")";
+  const std::string model_problems = nominal.Validate();
+  if (!model_problems.empty()) p.Add(robot + ": " + model_problems);
   for (int j = 0; j < robots::kWeld5Joints; ++j) {
     const std::string name = robots::Weld5JointName(j);
-    if (!(std::isfinite(nominal.q_min(j)) && std::isfinite(nominal.q_max(j)) &&
-          nominal.q_min(j) < nominal.q_max(j))) {
-      p.Add(robot + ": " + name + " limits: need min < max, got " + Num(nominal.q_min(j)) + ", " +
-            Num(nominal.q_max(j)));
-    }
-    p.Positive(robot + ": " + name + " speed", nominal.qd_max(j));
     const double q0 = initial_joints[static_cast<size_t>(j)];
     if (!(q0 >= nominal.q_min(j) && q0 <= nominal.q_max(j))) {
       p.Add("modbus.initial_joints[" + std::to_string(j) + "]: " + Num(q0) +

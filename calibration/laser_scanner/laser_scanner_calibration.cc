@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <sstream>
 #include <stdexcept>
@@ -362,6 +363,7 @@ LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibration
       };
       evaluate(b_y, d_y, c);
       if (options.refine) {
+        double last_step = std::numeric_limits<double>::infinity();
         for (out.iterations = 0; out.iterations < options.max_iterations;) {
           const Eigen::VectorXd delta = J.colPivHouseholderQr().solve(-r);
           b_y += delta(0);
@@ -369,11 +371,19 @@ LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibration
           c += delta.tail(N);
           ++out.iterations;
           evaluate(b_y, d_y, c);
-          if (delta.norm() <= options.step_tolerance) break;
+          last_step = delta.norm();
+          if (last_step <= options.step_tolerance) {
+            out.converged = true;
+            break;
+          }
         }
-        out.converged = true;
-      } else {
-        out.converged = true;
+        if (!out.converged) {
+          out.warnings.push_back("rotating laser: the joint refinement did not converge in " +
+                                 std::to_string(out.iterations) + " iteration(s) (last step " +
+                                 Format(last_step) + " > step_tolerance " +
+                                 Format(options.step_tolerance) +
+                                 "): the values are the last iterate");
+        }
       }
       double ssr = 0.0;
       for (int k = 0, row = 0; k < N; ++k) {

@@ -137,6 +137,8 @@ struct LaserScannerCalibration {
   double fixed_residual_max = std::numeric_limits<double>::quiet_NaN();
   int images = 0;
   int iterations = 0;  // joint refinement
+  // The joint refinement's last step was <= options.step_tolerance within max_iterations (a
+  // warning says so when it was not). False when options.refine is off: nothing iterated.
   bool converged = false;
 
   std::vector<std::string> errors;    // what could not be calibrated and why

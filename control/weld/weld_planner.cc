@@ -285,16 +285,10 @@ void OrderPasses(const std::vector<OrderNode>& nodes, const Eigen::Vector3d& fro
 
 void CheckModel(const robots::Weld5Model& model, const WeldPlanOptions& o) {
   std::ostringstream bad;
+  const std::string model_problems = model.Validate();
+  if (!model_problems.empty()) bad << "model: " << model_problems;
   for (int i = 0; i < robots::kWeld5Joints; ++i) {
     const char* name = robots::Weld5JointName(i);
-    if (!(model.q_min(i) < model.q_max(i))) {
-      bad << (bad.tellp() > 0 ? "; " : "") << "model " << name << " limits [" << model.q_min(i)
-          << ", " << model.q_max(i) << "] (need min < max)";
-    }
-    if (!(model.qd_max(i) > 0.0) || !std::isfinite(model.qd_max(i))) {
-      bad << (bad.tellp() > 0 ? "; " : "") << "model " << name << " qd_max = " << model.qd_max(i)
-          << " (> 0)";
-    }
     if (!(o.q_start(i) >= model.q_min(i) && o.q_start(i) <= model.q_max(i))) {
       bad << (bad.tellp() > 0 ? "; " : "") << "q_start " << name << " = " << o.q_start(i)
           << " outside [" << model.q_min(i) << ", " << model.q_max(i) << "]";

@@ -301,6 +301,10 @@ Weld5Description LoadWeld5Description(const std::string& path) {
     r.Problem("torch: expected {px5, pz5, beta} (tip and tilt in link frame 5)");
   }
   r.ThrowIfAny();
+  // What the keys' own checks cannot see (an infinite length given as .inf).
+  const std::string invalid = d.model.Validate();
+  if (!invalid.empty()) r.Problem(invalid);
+  r.ThrowIfAny();
   return d;
 }
 

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "common/config_error.h"
 #include "common/units.h"
 
 namespace kinevis::robots {
@@ -116,6 +117,37 @@ Weld5Model Weld5Model::Seed(const Eigen::Isometry3d& X_5T) {
 
 Weld5Model Weld5Model::Ideal(const Eigen::Isometry3d& X_5T) {
   return MakeModel(-90.0 * common::kDeg, 0.0, 0.0, 0.0, X_5T);
+}
+
+std::string Weld5Model::Validate() const {
+  common::Problems p;
+  for (int i = 0; i < kWeld5Joints; ++i) {
+    const std::string name = Weld5JointName(i);
+    const DhJoint& j = joints[i];
+    p.Finite(name + ".a", j.a);
+    p.Finite(name + ".alpha", j.alpha);
+    p.Finite(name + ".d", j.d);
+    p.Finite(name + ".theta_offset", j.theta_offset);
+    p.Finite(name + ".q_min", q_min(i));
+    p.Finite(name + ".q_max", q_max(i));
+    if (std::isfinite(q_min(i)) && std::isfinite(q_max(i)) && !(q_min(i) < q_max(i))) {
+      p.Add(name + ".limits: need q_min < q_max, got [" + common::Num(q_min(i)) + ", " +
+            common::Num(q_max(i)) + "]");
+    }
+    p.Positive(name + ".qd_max", qd_max(i));
+  }
+  const Eigen::Matrix4d& X = X_5T.matrix();
+  if (!X.allFinite()) {
+    p.Add("X_5T: must be finite");
+  } else {
+    const Eigen::Matrix3d R = X_5T.linear();
+    const double orthogonality = (R.transpose() * R - Eigen::Matrix3d::Identity()).norm();
+    if (orthogonality > 1e-9 || R.determinant() < 0.0) {
+      p.Add("X_5T.linear: must be a rotation, got |RᵀR − I| = " + common::Num(orthogonality) +
+            ", det = " + common::Num(R.determinant()));
+    }
+  }
+  return p.Message();
 }
 
 Eigen::Isometry3d Weld5TorchTransform(double px5, double pz5, double beta) {

@@ -23,6 +23,7 @@
 #include <array>
 #include <cmath>
 #include <cstddef>
+#include <string>
 
 namespace kinevis::robots {
 
@@ -123,6 +124,12 @@ struct Weld5Model {
   // The seed geometry with ideal values as eq. (35)–(46) assume them: α1 = −90°, a1 = 0, both
   // joint offsets 0.
   static Weld5Model Ideal(const Eigen::Isometry3d& X_5T);
+
+  // Empty when usable, otherwise every bad field and its value ("FIELD: RULE, got VALUE"; joints
+  // named theta1, theta2, pz3, theta4, theta5): finite D–H parameters, finite limits with
+  // q_min < q_max, finite qd_max > 0, and a finite X_5T whose linear part is a rotation.
+  // Allocates (the message).
+  std::string Validate() const;
 };
 
 // Torch transform X_5T from the seed's symbols: tip at (px5, 0, pz5) in frame 5 (m), torch axis

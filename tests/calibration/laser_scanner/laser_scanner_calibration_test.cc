@@ -101,6 +101,8 @@ TEST(LaserScannerCalibration, ExactStripesGiveTheSeedsParameters) {
   ASSERT_TRUE(c.ok()) << (c.errors.empty() ? "" : c.errors[0]);
   EXPECT_TRUE(c.rotating_calibrated);
   EXPECT_TRUE(c.fixed_calibrated);
+  EXPECT_TRUE(c.converged);
+  EXPECT_GE(c.iterations, 1);
   EXPECT_NEAR(c.geometry.rotating_b_y, truth.rotating_b_y, 1e-8);
   EXPECT_NEAR(c.geometry.rotating_d_y, truth.rotating_d_y, 1e-8);
   EXPECT_NEAR(c.geometry.fixed_b_x_prime, truth.fixed_b_x_prime, 1e-8);
@@ -173,6 +175,39 @@ TEST(LaserScannerCalibration, NoisyStripesWithOutliersAreWithinTheirUncertainty)
   EXPECT_LT(mahalanobis, 4.0);
   EXPECT_GT(mahalanobis_fixed, 0.7);
   EXPECT_LT(mahalanobis_fixed, 4.0);
+}
+
+// `converged` is the refinement's own verdict: one Gauss–Newton step from the linear values of
+// noisy stripes is not below a zero step tolerance, and without refinement nothing iterated.
+TEST(LaserScannerCalibration, ConvergedSaysWhetherTheRefinementMetItsTolerance) {
+  const auto camera = vision::BuiltinCameraModel("tsai-seed004");
+  const ScannerGeometry truth = ScannerGeometry::Seed004();
+  DataOptions data;
+  data.noise_px = 0.1;
+  data.seed = 7;
+  const auto images = MakeImages(*camera, truth, Stepper(), DefaultPoses(), kSteps, data);
+
+  const LaserScannerCalibration full = CalibrateLaserScanner(images, *camera);
+  ASSERT_TRUE(full.ok());
+  EXPECT_TRUE(full.converged);
+  EXPECT_LT(full.iterations, LaserScannerCalibrationOptions().max_iterations);
+
+  LaserScannerCalibrationOptions one_step;
+  one_step.max_iterations = 1;
+  one_step.step_tolerance = 0.0;
+  const LaserScannerCalibration cut = CalibrateLaserScanner(images, *camera, one_step);
+  EXPECT_TRUE(cut.ok());
+  EXPECT_FALSE(cut.converged);
+  EXPECT_EQ(cut.iterations, 1);
+  EXPECT_THAT(cut.warnings, ::testing::Contains(::testing::HasSubstr(
+                                "joint refinement did not converge in 1 iteration")));
+
+  LaserScannerCalibrationOptions linear;
+  linear.refine = false;
+  const LaserScannerCalibration raw = CalibrateLaserScanner(images, *camera, linear);
+  EXPECT_TRUE(raw.ok());
+  EXPECT_FALSE(raw.converged);
+  EXPECT_EQ(raw.iterations, 0);
 }
 
 TEST(LaserScannerCalibration, OnePositionCannotSeparateBFromD) {

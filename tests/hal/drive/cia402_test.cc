@@ -4,6 +4,8 @@
 
 #include <set>
 
+#include "tests/hal/drive/cia402_spec_table.h"
+
 namespace kinevis::hal {
 namespace {
 
@@ -73,6 +75,88 @@ TEST(Cia402Test, EveryCommandedRowOfTheTransitionTableIsApplied) {
         << ToString(t.command);
   }
   for (int n = 1; n <= 16; ++n) EXPECT_TRUE(numbers.count(n)) << "transition " << n << " missing";
+}
+
+// Every controlword with bit 7 clear (bits 0..3 all 16 ways, with and without the don't-care
+// bits 4..6 and halt), in every state, under both quick stop option regimes: the decoder and
+// Cia402ApplyCommand give the state of the specification's tables as transcribed in
+// cia402_spec_table.h (not the library's kCia402Transitions).
+TEST(Cia402Test, DeviceSideFollowsTheSpecificationsTablesForEveryControlword) {
+  for (S from : kAllStates) {
+    for (bool resume : {false, true}) {
+      for (uint16_t low = 0; low < 16; ++low) {
+        for (uint16_t extra : {0x0000, 0x0170}) {
+          const uint16_t cw = low | extra;
+          const S expected = spec::After(from, spec::Classify(low), resume).value_or(from);
+          EXPECT_EQ(Cia402ApplyCommand(from, DecodeCia402Controlword(cw, cw), !resume), expected)
+              << spec::Describe(from, cw, resume);
+        }
+      }
+    }
+  }
+  // Transition 15 on the rising edge of bit 7 only.
+  EXPECT_EQ(Cia402ApplyCommand(S::kFault, DecodeCia402Controlword(0x80, 0x00)),
+            S::kSwitchOnDisabled);
+  EXPECT_EQ(Cia402ApplyCommand(S::kFault, DecodeCia402Controlword(0x80, 0x80)), S::kFault);
+}
+
+// The library's table says the same as the specification, row by row.
+TEST(Cia402Test, EveryRowOfTheLibrarysTableIsInTheSpecification) {
+  for (const Cia402Transition& t : kCia402Transitions) {
+    SCOPED_TRACE(::testing::Message() << "row: transition " << t.number << " " << ToString(t.from)
+                                      << " -> " << ToString(t.to));
+    if (t.automatic) {
+      switch (t.number) {
+        case 1:
+          EXPECT_EQ(t.from, S::kNotReadyToSwitchOn);
+          EXPECT_EQ(t.to, S::kSwitchOnDisabled);
+          break;
+        case 12:
+          EXPECT_EQ(t.from, S::kQuickStopActive);
+          EXPECT_EQ(t.to, S::kSwitchOnDisabled);
+          break;
+        case 13:
+          EXPECT_NE(t.from, S::kFault);
+          EXPECT_NE(t.from, S::kFaultReactionActive);
+          EXPECT_EQ(t.to, S::kFaultReactionActive);
+          break;
+        case 14:
+          EXPECT_EQ(t.from, S::kFaultReactionActive);
+          EXPECT_EQ(t.to, S::kFault);
+          break;
+        default:
+          ADD_FAILURE() << "transition " << t.number << " is not automatic in the specification";
+      }
+      continue;
+    }
+    if (t.command == C::kFaultReset) {
+      EXPECT_EQ(t.number, 15);
+      EXPECT_EQ(t.from, S::kFault);
+      EXPECT_EQ(t.to, S::kSwitchOnDisabled);
+      continue;
+    }
+    const spec::Word word = spec::Classify(Cia402Controlword(t.command));
+    EXPECT_EQ(spec::After(t.from, word, t.number == 16).value_or(t.from), t.to) << spec::Name(word);
+  }
+}
+
+// The host never sends a word that the specification makes do nothing in the drive's state.
+TEST(Cia402Test, HostCommandsAreTransitionsOfTheSpecification) {
+  for (S target : {S::kOperationEnabled, S::kSwitchOnDisabled, S::kSwitchedOn, S::kReadyToSwitchOn,
+                   S::kQuickStopActive}) {
+    for (S from : kAllStates) {
+      const C c = Cia402NextCommand(from, target);
+      if (c == C::kNone) continue;
+      if (c == C::kFaultReset) {
+        EXPECT_EQ(from, S::kFault) << "fault reset towards " << ToString(target);
+        continue;
+      }
+      const spec::Word word = spec::Classify(Cia402Controlword(c));
+      EXPECT_TRUE(spec::After(from, word, false).has_value())
+          << ToString(from) << " towards " << ToString(target) << ": host sends "
+          << spec::Name(word);
+    }
+  }
 }
 
 TEST(Cia402Test, CommandsThatDoNotApplyLeaveTheStateAlone) {

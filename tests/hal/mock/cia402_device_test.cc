@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "hal/common/error.h"
+#include "tests/hal/drive/cia402_spec_table.h"
 
 namespace kinevis::hal {
 namespace {
@@ -93,6 +94,28 @@ TEST(Cia402DeviceTest, EveryRowOfTheTransitionTable) {
     }
     EXPECT_EQ(d.state(), row.to);
     EXPECT_EQ(DecodeCia402Statusword(d.statusword()), row.to);
+  }
+}
+
+// The simulator against the specification's tables (cia402_spec_table.h, not the library's
+// kCia402Transitions): every state a host can reach, every controlword with bit 7 clear, both
+// quick stop option regimes; the state is read back through the statusword as a host would.
+TEST(Cia402DeviceTest, EveryControlwordInEveryStateAsTheSpecificationSays) {
+  for (S from : {S::kSwitchOnDisabled, S::kReadyToSwitchOn, S::kSwitchedOn, S::kOperationEnabled,
+                 S::kQuickStopActive, S::kFault}) {
+    for (bool resume : {false, true}) {
+      for (uint16_t cw = 0; cw < 16; ++cw) {
+        Cia402Device::Options options = TestOptions();
+        options.quick_stop_option_code = resume ? 6 : 2;
+        Cia402Device d(options);
+        BringTo(d, from);
+        ASSERT_EQ(d.state(), from);
+        d.SetControlword(cw);
+        const S expected = spec::After(from, spec::Classify(cw), resume).value_or(from);
+        EXPECT_EQ(DecodeCia402Statusword(d.statusword()), expected)
+            << spec::Describe(from, cw, resume);
+      }
+    }
   }
 }
 

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <new>
 #include <random>
+#include <string>
 
 #include "common/units.h"
 #include "tests/utilities/allocation_counter.h"
@@ -167,6 +168,34 @@ TEST(Weld5Model, SeedParametersInSi) {
       EXPECT_FALSE(m.joints[i].prismatic);
     }
   }
+}
+
+TEST(Weld5Model, ValidateNamesEveryBadFieldAndItsValue) {
+  const Weld5Model seed = Weld5Model::Seed(Weld5TorchTransform(kPx5, kPz5, 0.3));
+  EXPECT_EQ(seed.Validate(), "");
+  EXPECT_EQ(Weld5Model::Ideal(Eigen::Isometry3d::Identity()).Validate(), "");
+
+  Weld5Model bad = seed;
+  bad.joints[1].alpha = std::nan("");
+  bad.q_min(2) = 0.4;
+  bad.q_max(2) = 0.1;
+  bad.qd_max(4) = 0.0;
+  const std::string message = bad.Validate();
+  EXPECT_NE(message.find("theta2.alpha: must be finite, got nan"), std::string::npos) << message;
+  EXPECT_NE(message.find("pz3.limits: need q_min < q_max, got [0.4, 0.1]"), std::string::npos)
+      << message;
+  EXPECT_NE(message.find("theta5.qd_max: must be > 0, got 0"), std::string::npos) << message;
+  EXPECT_EQ(message.find("theta1"), std::string::npos) << message;
+
+  Weld5Model sheared = seed;
+  sheared.X_5T.matrix()(0, 1) = 0.2;
+  EXPECT_NE(sheared.Validate().find("X_5T.linear: must be a rotation"), std::string::npos);
+  Weld5Model mirrored = seed;
+  mirrored.X_5T.matrix().col(0) *= -1.0;
+  EXPECT_NE(mirrored.Validate().find("det = -1"), std::string::npos) << mirrored.Validate();
+  Weld5Model infinite = seed;
+  infinite.X_5T.translation().x() = INFINITY;
+  EXPECT_NE(infinite.Validate().find("X_5T: must be finite"), std::string::npos);
 }
 
 TEST(Weld5Model, TorchTransformTiltsAxisAboutY5) {
