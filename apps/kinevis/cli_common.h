@@ -9,13 +9,6 @@
 #include <memory>
 #include <string>
 
-namespace kinevis::common {
-class Clock;
-}  // namespace kinevis::common
-namespace kinevis::hal {
-class Camera;
-}  // namespace kinevis::hal
-
 namespace kinevis::cli {
 
 enum ExitCode : int {
@@ -35,13 +28,6 @@ void RequestStop();
 // "kinevis <command>: <message>": common::ConfigError and other std::invalid_argument (bad
 // files or parameters found by a library) -> 2, hal::HalError -> 3, other -> 1.
 int RunGuarded(const std::string& command, const std::function<int()>& body);
-
-// A rig's camera: opened from `source` (docs/cameras.md) on `clock`, started, and checked to
-// deliver frames of the model's size. Throws hal::HalError when it cannot be started, and
-// std::invalid_argument "<what>: frames are WxH but the model <model_spec> is for wxh".
-std::unique_ptr<hal::Camera> OpenRigCamera(const std::string& source, common::Clock& clock,
-                                           int model_width, int model_height,
-                                           const std::string& what, const std::string& model_spec);
 
 // For `kinevis sim ...`: prints `backend` as the first line of standard output (flushed), then
 // blocks until SIGINT/SIGTERM and returns kExitOk. `poll` runs every `period` meanwhile (for a

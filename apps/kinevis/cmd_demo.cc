@@ -32,7 +32,6 @@
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
 #include "apps/kinevis/diamond_jobs.h"
-#include "apps/kinevis/hexapod_jobs.h"
 #include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/weld_mount/mount_calibration_io.h"
 #include "common/units.h"
@@ -47,6 +46,7 @@
 #include "hal/modbus/modbus_client.h"
 #include "hal/modbus/modbus_server.h"
 #include "hal/serial/pty_pair.h"
+#include "rigs/hexapod/hexapod_jobs.h"
 #include "sim/hexapod_world.h"
 #include "sim/weld_cell_world.h"
 #include "vision/cloud/cloud_sidecar.h"
@@ -56,6 +56,17 @@ namespace {
 
 using namespace std::chrono_literals;
 using Micros = std::chrono::duration<double, std::micro>;
+using rigs::CalibrateHexapodFromDataset;
+using rigs::HexapodCalibrateOptions;
+using rigs::HexapodCalibrationRun;
+using rigs::HexapodRecordOptions;
+using rigs::HexapodRecordSummary;
+using rigs::HexapodRig;
+using rigs::HexapodRigOptions;
+using rigs::HexapodServoOptions;
+using rigs::HexapodServoRun;
+using rigs::RecordHexapodDataset;
+using rigs::ServoHexapod;
 
 class Checks {
  public:

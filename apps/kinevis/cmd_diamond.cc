@@ -28,18 +28,22 @@
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
 #include "apps/kinevis/diamond_jobs.h"
-#include "apps/kinevis/diamond_rig.h"
 #include "calibration/diamond/camera_placement.h"
 #include "calibration/diamond/diamond_calibration_io.h"
 #include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/common/realtime.h"
 #include "hal/drive/rs485_drive.h"
+#include "rigs/diamond/diamond_rig.h"
 #include "sim/diamond_world.h"
 #include "vision/camera/camera_file.h"
 #include "vision/diamond/spherical_positioning.h"
 
 namespace kinevis::cli {
+
+using rigs::DiamondDetectorOptions;
+using rigs::DiamondRig;
+using rigs::DiamondRigOptions;
 namespace {
 
 namespace fs = std::filesystem;

@@ -24,15 +24,19 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
-#include "apps/kinevis/weld_rig.h"
 #include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/laser_scanner/laser_scanner_dataset.h"
 #include "common/units.h"
+#include "rigs/weld/weld_rig.h"
 #include "sim/weld_cell_world.h"
 #include "vision/camera/camera_file.h"
 #include "vision/laser/laser_stripes.h"
 
 namespace kinevis::cli {
+
+using rigs::WeldRig;
+using rigs::WeldRigOptions;
+using rigs::WeldWorkpiece;
 namespace {
 
 struct ScannerRecordOptions {

@@ -32,7 +32,6 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
-#include "apps/kinevis/weld_rig.h"
 #include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/weld_mount/mount_calibration.h"
 #include "calibration/weld_mount/mount_calibration_io.h"
@@ -40,6 +39,7 @@
 #include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/weld/weld_robot_client.h"
+#include "rigs/weld/weld_rig.h"
 #include "robots/io/robot_description.h"
 #include "sim/weld_cell_world.h"
 #include "vision/camera/camera_file.h"
@@ -47,6 +47,10 @@
 #include "vision/laser/scanner_model.h"
 
 namespace kinevis::cli {
+
+using rigs::WeldRig;
+using rigs::WeldRigOptions;
+using rigs::WeldWorkpiece;
 namespace {
 
 namespace fs = std::filesystem;

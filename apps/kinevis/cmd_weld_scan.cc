@@ -32,7 +32,6 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
-#include "apps/kinevis/weld_rig.h"
 #include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/weld_mount/mount_calibration_io.h"
 #include "calibration/weld_mount/scan_cloud.h"
@@ -41,6 +40,7 @@
 #include "control/weld/weld_plan_io.h"
 #include "control/weld/weld_planner.h"
 #include "hal/weld/weld_robot_client.h"
+#include "rigs/weld/weld_rig.h"
 #include "sim/weld_cell_world.h"
 #include "vision/camera/camera_file.h"
 #include "vision/cloud/cloud_sidecar.h"
@@ -48,6 +48,10 @@
 #include "vision/render/scenes/laser_scene.h"
 
 namespace kinevis::cli {
+
+using rigs::WeldRig;
+using rigs::WeldRigOptions;
+using rigs::WeldWorkpiece;
 namespace {
 
 namespace fs = std::filesystem;

@@ -1,7 +1,7 @@
 #pragma once
 
 // The DIAMOND jobs behind `kinevis record|calibrate|servo diamond` (cmd_diamond.cc), callable from
-// `kinevis demo` too (RunDiamondDemo). Each runs on a DiamondRig: the simulated world in this
+// `kinevis demo` too (RunDiamondDemo). Each runs on a rigs::DiamondRig: the simulated world in this
 // process or the real robot (docs/diamond-calibration.md, "Command line").
 //
 // Units: SI inside (m, rad, s); the command line converts degrees at its edge.
@@ -15,11 +15,11 @@
 #include <string>
 #include <vector>
 
-#include "apps/kinevis/diamond_rig.h"
 #include "calibration/diamond/diamond_dataset.h"
 #include "calibration/diamond/diamond_identification.h"
 #include "control/diamond/diamond_laws.h"
 #include "control/diamond/diamond_loop.h"
+#include "rigs/diamond/diamond_rig.h"
 
 namespace kinevis::cli {
 
@@ -48,13 +48,14 @@ struct DiamondRecordSummary {
 
 // Plans `samples` task points spread over the part of the nominal workspace whose marker the
 // camera sees (calibration::DiamondVisibleTaskGrid on a grid fine enough, subsampled evenly and
-// visited nearest-first), moves there through the two drives (DiamondRig::MoveTo: the control
+// visited nearest-first), moves there through the two drives (rigs::DiamondRig::MoveTo: the control
 // loop's task-space PD and safety), grabs a fresh image and appends it with the joint readings to
 // a new dataset. On a simulated rig it also writes DIR/simulation_truth.yaml (the world's true
 // R, α, β, joint offsets and camera pose; for comparison only). Enables the drives first, moves
 // back to where the tool started and disables them at the end. Throws std::invalid_argument (bad
 // options, nothing visible, the directory holds a dataset), hal::HalError.
-DiamondRecordSummary RecordDiamondDataset(DiamondRig* rig, const DiamondRecordOptions& options);
+DiamondRecordSummary RecordDiamondDataset(rigs::DiamondRig* rig,
+                                          const DiamondRecordOptions& options);
 
 // --- calibrate ----------------------------------------------------------------------------------
 
@@ -158,7 +159,7 @@ struct DiamondServoRun {
 // measuring the marker path with the camera. Enables the drives (if not yet) and leaves them
 // enabled; the caller's rig disables them. Throws std::invalid_argument (bad calibration file, a
 // line or target outside the workspace, naming --from / --to), hal::HalError.
-DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& options);
+DiamondServoRun ServoDiamond(rigs::DiamondRig* rig, const DiamondServoOptions& options);
 void PrintDiamondServo(const DiamondServoRun& run, const DiamondServoOptions& options);
 // The exit code of a servo run (docs/cli.md): 0 completed, 3 drive fault / lost link / camera
 // failure, 1 otherwise (lost marker, not converged, limit, timeout).

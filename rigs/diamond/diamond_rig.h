@@ -34,7 +34,7 @@ namespace kinevis::vision {
 class CameraModel;
 }
 
-namespace kinevis::cli {
+namespace kinevis::rigs {
 
 struct DiamondRigOptions {
   // A world config (simulated in this process), a deployment file (real hardware), or empty: the
@@ -131,4 +131,4 @@ class DiamondRig {
   bool real_time_ = true;
 };
 
-}  // namespace kinevis::cli
+}  // namespace kinevis::rigs

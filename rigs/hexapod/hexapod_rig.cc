@@ -1,4 +1,4 @@
-#include "apps/kinevis/hexapod_rig.h"
+#include "rigs/hexapod/hexapod_rig.h"
 
 #include <spdlog/spdlog.h>
 
@@ -6,19 +6,19 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "apps/kinevis/cli_common.h"
 #include "common/clock.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/can/can_bus_factory.h"
 #include "hal/canopen/canopen_master.h"
 #include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
+#include "rigs/rig_camera.h"
 #include "robots/io/robot_description.h"
 #include "sim/hexapod_world.h"
 #include "vision/camera/camera_file.h"
 #include "vision/render/scenes/hexapod_scene.h"
 
-namespace kinevis::cli {
+namespace kinevis::rigs {
 namespace {
 
 using namespace std::chrono_literals;
@@ -260,4 +260,4 @@ void HexapodRig::Disable() {
   if (master_) master_->DisableAll();
 }
 
-}  // namespace kinevis::cli
+}  // namespace kinevis::rigs

@@ -1,4 +1,4 @@
-#include "apps/kinevis/diamond_rig.h"
+#include "rigs/diamond/diamond_rig.h"
 
 #include <spdlog/spdlog.h>
 
@@ -7,19 +7,19 @@
 #include <stdexcept>
 #include <thread>
 
-#include "apps/kinevis/cli_common.h"
 #include "common/clock.h"
 #include "control/diamond/diamond_drives.h"
 #include "control/diamond/diamond_laws.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/common/error.h"
 #include "hal/drive/rs485_drive.h"
+#include "rigs/rig_camera.h"
 #include "robots/io/robot_description.h"
 #include "sim/diamond_world.h"
 #include "vision/camera/camera_file.h"
 #include "vision/render/scenes/diamond_marker_scene.h"
 
-namespace kinevis::cli {
+namespace kinevis::rigs {
 namespace {
 
 using namespace std::chrono_literals;
@@ -273,4 +273,4 @@ void DiamondRig::Disable() {
   }
 }
 
-}  // namespace kinevis::cli
+}  // namespace kinevis::rigs

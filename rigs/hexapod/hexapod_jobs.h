@@ -1,21 +1,22 @@
 #pragma once
 
-// The hexapod jobs behind `kinevis record|calibrate|servo hexapod` (cmd_hexapod.cc), callable from
-// `kinevis demo` too. Each runs on a HexapodRig: the simulated world in this process or the real
-// machine (docs/hexapod-rig.md).
+// The hexapod jobs behind `kinevis record|calibrate|servo hexapod`, `kinevis demo` and the
+// experiments. Each runs on a HexapodRig (the simulated world in this process or the real machine,
+// docs/hexapod-rig.md) and returns a report struct; printing is the caller's.
 
 #include <Eigen/Geometry>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
-#include "apps/kinevis/hexapod_rig.h"
 #include "calibration/hexapod/dataset_calibration.h"
 #include "control/hexapod/image_leg_features.h"
 #include "control/hexapod/servo_loop.h"
+#include "rigs/hexapod/hexapod_rig.h"
 
-namespace kinevis::cli {
+namespace kinevis::rigs {
 
 struct HexapodRecordOptions {
   std::string out;        // dataset directory to create
@@ -24,6 +25,8 @@ struct HexapodRecordOptions {
   uint64_t seed = 1;      // of the pose planner
   double speed = 0.05;    // fastest leg speed between poses (m/s)
   double settle_s = 0.3;  // wait after each move before the image (s)
+  // Polled before each pose; true ends the recording ("interrupted"). Empty: never.
+  std::function<bool()> stop_requested;
 };
 
 struct HexapodRecordSummary {
@@ -62,7 +65,6 @@ struct HexapodCalibrationRun {
 
 // Calibrates from options.dataset, writes options.out and the re-projection PNG.
 HexapodCalibrationRun CalibrateHexapodFromDataset(const HexapodCalibrateOptions& options);
-void PrintHexapodCalibration(const HexapodCalibrationRun& run);
 
 struct HexapodServoOptions {
   std::string calib;                                              // calibration result YAML
@@ -100,6 +102,5 @@ Eigen::Isometry3d ReadTargetPose(const std::string& path);
 // calibration in options.calib. Enables the drives and disables them at the end. Throws
 // std::invalid_argument (bad calibration file, unreachable target), hal::HalError.
 HexapodServoRun ServoHexapod(HexapodRig* rig, const HexapodServoOptions& options);
-void PrintHexapodServo(const HexapodServoRun& run, const HexapodServoOptions& options);
 
-}  // namespace kinevis::cli
+}  // namespace kinevis::rigs

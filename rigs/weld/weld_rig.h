@@ -34,7 +34,7 @@ namespace kinevis::vision {
 class CameraModel;
 }
 
-namespace kinevis::cli {
+namespace kinevis::rigs {
 
 // What stands in front of the robot in a simulated cell (a real cell has what the operator put
 // there). kFromConfig: the world config's workpiece.
@@ -110,4 +110,4 @@ class WeldRig {
   mutable uint64_t touches_ = 0;
 };
 
-}  // namespace kinevis::cli
+}  // namespace kinevis::rigs

@@ -34,7 +34,7 @@ namespace kinevis::vision {
 class CameraModel;
 }
 
-namespace kinevis::cli {
+namespace kinevis::rigs {
 
 struct HexapodRigOptions {
   std::string config;  // a world config (simulated) or a deployment file (real hardware)
@@ -115,4 +115,4 @@ class HexapodRig {
   std::chrono::microseconds cycle_period_{4000};
 };
 
-}  // namespace kinevis::cli
+}  // namespace kinevis::rigs

@@ -1,4 +1,4 @@
-#include "apps/kinevis/weld_rig.h"
+#include "rigs/weld/weld_rig.h"
 
 #include <spdlog/spdlog.h>
 
@@ -8,16 +8,16 @@
 #include <stdexcept>
 #include <vector>
 
-#include "apps/kinevis/cli_common.h"
 #include "common/clock.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/common/error.h"
 #include "hal/weld/weld_robot_client.h"
+#include "rigs/rig_camera.h"
 #include "robots/io/robot_description.h"
 #include "sim/weld_cell_world.h"
 #include "vision/camera/camera_file.h"
 
-namespace kinevis::cli {
+namespace kinevis::rigs {
 namespace {
 
 using namespace std::chrono_literals;
@@ -222,4 +222,4 @@ bool WeldRig::OperatorTouch(const Eigen::Vector3d& p_0, const Eigen::Vector3d& a
   return true;
 }
 
-}  // namespace kinevis::cli
+}  // namespace kinevis::rigs
