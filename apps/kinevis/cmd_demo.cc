@@ -31,7 +31,7 @@
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
-#include "apps/kinevis/diamond_jobs.h"
+#include "apps/kinevis/diamond_demo.h"
 #include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/weld_mount/mount_calibration_io.h"
 #include "common/units.h"

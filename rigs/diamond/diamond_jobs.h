@@ -1,8 +1,9 @@
 #pragma once
 
-// The DIAMOND jobs behind `kinevis record|calibrate|servo diamond` (cmd_diamond.cc), callable from
-// `kinevis demo` too (RunDiamondDemo). Each runs on a rigs::DiamondRig: the simulated world in this
-// process or the real robot (docs/diamond-calibration.md, "Command line").
+// The DIAMOND jobs behind `kinevis record|calibrate|servo diamond`, `kinevis demo` and the
+// experiments. Each runs on a DiamondRig (the simulated world in this process or the real robot,
+// docs/diamond-calibration.md, "Command line") and returns a report struct; printing is the
+// caller's.
 //
 // Units: SI inside (m, rad, s); the command line converts degrees at its edge.
 
@@ -21,7 +22,10 @@
 #include "control/diamond/diamond_loop.h"
 #include "rigs/diamond/diamond_rig.h"
 
-namespace kinevis::cli {
+namespace kinevis::rigs {
+
+// The file a simulated recording writes beside its dataset: the world's truth, for comparison only.
+inline constexpr char kDiamondTruthFile[] = "simulation_truth.yaml";
 
 // --- record -------------------------------------------------------------------------------------
 
@@ -33,6 +37,8 @@ struct DiamondRecordOptions {
   // The marker's image by the nominal model at least this far inside the image (px); < 0: 10 %
   // of the image's shorter side.
   double margin_px = -1;
+  // Polled before each sample; true ends the recording ("interrupted"). Empty: never.
+  std::function<bool()> stop_requested;
 };
 
 struct DiamondRecordSummary {
@@ -44,17 +50,19 @@ struct DiamondRecordSummary {
   // Samples whose image shows no marker to the detector (still recorded: raw data), with why.
   std::vector<std::string> marker_not_found;
   int retries = 0;  // moves nearer the view's centre because the marker was not seen
+  std::string truth_file;     // simulated: the simulation_truth.yaml written ("" otherwise)
+  double wall_seconds = 0.0;  // of the whole recording
 };
 
 // Plans `samples` task points spread over the part of the nominal workspace whose marker the
 // camera sees (calibration::DiamondVisibleTaskGrid on a grid fine enough, subsampled evenly and
-// visited nearest-first), moves there through the two drives (rigs::DiamondRig::MoveTo: the control
+// visited nearest-first), moves there through the two drives (DiamondRig::MoveTo: the control
 // loop's task-space PD and safety), grabs a fresh image and appends it with the joint readings to
 // a new dataset. On a simulated rig it also writes DIR/simulation_truth.yaml (the world's true
 // R, α, β, joint offsets and camera pose; for comparison only). Enables the drives first, moves
 // back to where the tool started and disables them at the end. Throws std::invalid_argument (bad
 // options, nothing visible, the directory holds a dataset), hal::HalError.
-DiamondRecordSummary RecordDiamondDataset(rigs::DiamondRig* rig,
+DiamondRecordSummary RecordDiamondDataset(DiamondRig* rig,
                                           const DiamondRecordOptions& options);
 
 // --- calibrate ----------------------------------------------------------------------------------
@@ -94,9 +102,6 @@ struct DiamondCalibrationRun {
 // another) and camera pose, and writes the result YAML. Throws std::invalid_argument for a bad
 // dataset or options, std::runtime_error when the result cannot be written.
 DiamondCalibrationRun CalibrateDiamondFromDataset(const DiamondCalibrateOptions& options);
-// The parameter table with σ, the identifiability report, the residual statistics (seed Table
-// II) and, when the dataset has a simulation truth, the errors against it.
-void PrintDiamondCalibration(const DiamondCalibrationRun& run);
 
 // --- servo --------------------------------------------------------------------------------------
 
@@ -159,36 +164,9 @@ struct DiamondServoRun {
 // measuring the marker path with the camera. Enables the drives (if not yet) and leaves them
 // enabled; the caller's rig disables them. Throws std::invalid_argument (bad calibration file, a
 // line or target outside the workspace, naming --from / --to), hal::HalError.
-DiamondServoRun ServoDiamond(rigs::DiamondRig* rig, const DiamondServoOptions& options);
-void PrintDiamondServo(const DiamondServoRun& run, const DiamondServoOptions& options);
-// The exit code of a servo run (docs/cli.md): 0 completed, 3 drive fault / lost link / camera
-// failure, 1 otherwise (lost marker, not converged, limit, timeout).
-int DiamondServoExitCode(const DiamondServoRun& run);
+DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& options);
 
-// --- demo ---------------------------------------------------------------------------------------
+// "(φ, γ) deg" of a task point (rad), with two decimals: how the jobs name a point in messages.
+std::string FormatTaskDeg(const Eigen::Vector2d& task);
 
-struct DiamondDemoResult {
-  int samples_recorded = 0;
-  bool identified = false;
-  // Relative errors of the identified R, α, β against the world's truth.
-  double radius_error = NAN, alpha_error = NAN, beta_error = NAN;
-  // Straightness (seed Table III) of the horizontal top-view line, true path (m), and the
-  // camera-measured one with the identified measurement model, a priori vs identified.
-  double straightness_apriori = NAN, straightness_identified = NAN;
-  double measured_apriori = NAN, measured_identified = NAN;
-  double position_apriori = NAN, position_identified = NAN;  // RMS position error (m)
-  double wall_seconds = 0.0;
-  std::string dataset, calibration, log_apriori, log_identified;  // files written
-};
-
-// The DIAMOND part of `kinevis demo`: on the built-in simulated world, records `samples`
-// configurations into OUT_DIR/diamond-dataset, calibrates (OUT_DIR/diamond_calib.yaml), then runs
-// the straightness validation (the seed's horizontal line in the top view) with the a-priori and
-// with the identified parameters (OUT_DIR/diamond_line_apriori.csv, _identified.csv). Each check
-// is reported through expect(ok, what). Catches nothing: a throw is the caller's to report.
-// About 25 s wall time with the default 30 samples (a 2-core machine under load).
-DiamondDemoResult RunDiamondDemo(
-    const std::string& out_dir, const std::function<void(bool ok, const std::string& what)>& expect,
-    int samples = 30);
-
-}  // namespace kinevis::cli
+}  // namespace kinevis::rigs
