@@ -41,7 +41,6 @@ double WallSince(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-
 // --- record -------------------------------------------------------------------------------------
 
 // `n` of the task points the camera sees, spread evenly over the visible workspace and ordered
@@ -204,8 +203,8 @@ DiamondRecordSummary RecordDiamondDataset(DiamondRig* rig, const DiamondRecordOp
       if (attempt > 0) task += 0.3 * (centre - task);
       const control::DiamondLoopReport moved = rig->MoveTo(task, o.speed);
       if (moved.outcome != control::DiamondLoopOutcome::kCompleted) {
-        summary.stopped = "moving to " + FormatTaskDeg(task) + ": " + control::ToString(moved.outcome) +
-                          ": " + moved.message;
+        summary.stopped = "moving to " + FormatTaskDeg(task) + ": " +
+                          control::ToString(moved.outcome) + ": " + moved.message;
         summary.hardware_fault = moved.outcome == control::DiamondLoopOutcome::kDriveFault ||
                                  moved.outcome == control::DiamondLoopOutcome::kNotStarted;
         failed = true;

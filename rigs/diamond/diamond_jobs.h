@@ -49,7 +49,7 @@ struct DiamondRecordSummary {
   bool simulated = false;       // a simulation_truth.yaml was written beside the dataset
   // Samples whose image shows no marker to the detector (still recorded: raw data), with why.
   std::vector<std::string> marker_not_found;
-  int retries = 0;  // moves nearer the view's centre because the marker was not seen
+  int retries = 0;            // moves nearer the view's centre because the marker was not seen
   std::string truth_file;     // simulated: the simulation_truth.yaml written ("" otherwise)
   double wall_seconds = 0.0;  // of the whole recording
 };
@@ -62,8 +62,7 @@ struct DiamondRecordSummary {
 // R, α, β, joint offsets and camera pose; for comparison only). Enables the drives first, moves
 // back to where the tool started and disables them at the end. Throws std::invalid_argument (bad
 // options, nothing visible, the directory holds a dataset), hal::HalError.
-DiamondRecordSummary RecordDiamondDataset(DiamondRig* rig,
-                                          const DiamondRecordOptions& options);
+DiamondRecordSummary RecordDiamondDataset(DiamondRig* rig, const DiamondRecordOptions& options);
 
 // --- calibrate ----------------------------------------------------------------------------------
 
