@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "calibration/weld_mount/mount_calibration.h"
+#include "calibration/weld_mount/mount_plan.h"
 #include "robots/weld5/weld5_model.h"
 #include "sim/weld_cell_world.h"
 
@@ -71,10 +72,7 @@ inline SimulatedMount MakeSimulatedMount(const SimulatedMountOptions& o = {}) {
   s.true_robot = world.true_model();
   s.X_5C_true = config.X_5C;
   const vision::render::LaserSceneParameters& w = config.workpiece;
-  s.X_0B_true =
-      config.X_0S *
-      Eigen::Translation3d(w.gauge_centre_S.x(), w.gauge_centre_S.y(), 0.5 * w.gauge_size.z()) *
-      Eigen::AngleAxisd(w.gauge_heading, Eigen::Vector3d::UnitZ());
+  s.X_0B_true = config.X_0S * w.X_SB();
 
   std::mt19937 rng(o.seed);
   std::normal_distribution<double> normal(0.0, 1.0);
@@ -100,48 +98,15 @@ inline SimulatedMount MakeSimulatedMount(const SimulatedMountOptions& o = {}) {
   const Eigen::Matrix3d R_0B = s.X_0B_true.linear();
   const robots::Vector5d q_home = ToVector5(config.initial_joints);
 
-  // Touches: points on the faces, edges and corners of the block and on the board.
-  struct Touch {
-    std::string feature;
-    Eigen::Vector3d p_B;
-  };
-  std::vector<Touch> touches = {
-      {"top", {-0.035, -0.015, h.z()}}, {"top", {0.035, -0.015, h.z()}},
-      {"top", {0.030, 0.018, h.z()}},   {"top", {-0.030, 0.015, h.z()}},
-      {"board", {0.0, 0.045, -h.z()}},  {"board", {0.070, 0.0, -h.z()}},
-  };
-  if (o.touch_sides) {
-    const std::vector<Touch> sides = {
-        {"+x", {h.x(), -0.012, 0.0}},  {"+x", {h.x(), 0.012, 0.0}},
-        {"-x", {-h.x(), 0.0, 0.0}},    {"+y", {-0.030, h.y(), 0.0}},
-        {"+y", {0.030, h.y(), 0.0}},   {"-y", {0.0, -h.y(), 0.0}},
-        {"+x+z", {h.x(), 0.0, h.z()}}, {"-x-y+z", {-h.x(), -h.y(), h.z()}},
-    };
-    touches.insert(touches.end(), sides.begin(), sides.end());
-  }
-  // The torch axis of this arm cannot point anywhere: θ5 turns about it, so its heading is set by
-  // θ1 and the tip's lateral offset from the arm's plane. Try approach axes on a grid, most
-  // head-on (most against the face's outward normal) first, and keep the first that IK reaches.
-  std::vector<Eigen::Vector3d> axes;
-  for (int yaw = -40; yaw <= 40; yaw += 5) {
-    for (int pitch = -60; pitch <= 60; pitch += 10) {
-      const double a = yaw * M_PI / 180.0, b = pitch * M_PI / 180.0;
-      axes.emplace_back(std::cos(a) * std::cos(b), std::sin(a) * std::cos(b), -std::sin(b));
-    }
-  }
-  for (const Touch& t : touches) {
+  // Touches: the recording job's plan (mount_plan.h) on the faces, edges and corners of the
+  // block and on the board. IK on the TRUE robot over the plan's approach axes, the most head-on
+  // first; a second pass with more starts accepts more grazing approaches.
+  for (const PlannedTouch& t : MountTouchPlan(o.touch_sides)) {
     const BlockFeature f = BlockFeature::Parse(t.feature);
-    // The side the torch comes from: outside the block, above the board (a feature on the board,
-    // s_z = −1, is approached from +z_B).
-    Eigen::Vector3d n_B = f.sign.cast<double>();
-    if (n_B.z() < 0.0) n_B.z() = 1.0;
-    const Eigen::Vector3d n_0 = R_0B * n_B.normalized();
-    std::vector<Eigen::Vector3d> sorted = axes;
-    std::sort(sorted.begin(), sorted.end(),
-              [&](const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-                return a.dot(n_0) < b.dot(n_0);
-              });
-    const Eigen::Vector3d p_0 = s.X_0B_true * t.p_B + noise3(o.touch_noise);
+    const Eigen::Vector3d n_0 = TouchApproachNormal(f, R_0B);
+    const std::vector<Eigen::Vector3d> sorted = TouchApproachAxes(n_0, 0.6);
+    const Eigen::Vector3d p_0 =
+        s.X_0B_true * Eigen::Vector3d(t.fraction.cwiseProduct(h)) + noise3(o.touch_noise);
     bool reached = false;
     for (int pass = 0; pass < 2 && !reached; ++pass)
       for (size_t k = 0; k < sorted.size() && !reached; ++k) {
@@ -163,32 +128,16 @@ inline SimulatedMount MakeSimulatedMount(const SimulatedMountOptions& o = {}) {
     if (!reached) s.unreachable_touches.push_back(t.feature);
   }
 
-  // Scans: from each wrist setting, θ1 and θ2 re-aimed by Gauss–Newton (numeric Jacobian) until
-  // the block's centre is on the optical axis.
+  // Scans: from each wrist setting, θ1 and θ2 re-aimed (mount_plan.h) until the block's centre is
+  // on the TRUE scanner's optical axis.
   const vision::CameraModel& camera = world.scanner_camera();
-  const Eigen::Vector3d centre_0 = s.X_0B_true.translation();
-  const auto miss = [&](const robots::Vector5d& q) -> Eigen::Vector2d {
-    const Eigen::Vector3d p_C = world.TrueScannerPose(ToArray5(q)).inverse() * centre_0;
-    return {p_C.x() / p_C.z(), p_C.y() / p_C.z()};
-  };
+  const auto X_0C = [&](const robots::Vector5d& q) { return world.TrueScannerPose(ToArray5(q)); };
   for (const Eigen::Vector2d& wrist : o.wrist) {
     robots::Vector5d q = q_home;
     q(2) = o.pz3;
     q(3) += wrist.x();
     q(4) = wrist.y();
-    for (int it = 0; it < 20; ++it) {
-      const Eigen::Vector2d m = miss(q);
-      if (m.norm() < 1e-7) break;
-      Eigen::Matrix2d J;
-      for (int j = 0; j < 2; ++j) {
-        robots::Vector5d qh = q;
-        qh(j) += 1e-6;
-        J.col(j) = (miss(qh) - m) / 1e-6;
-      }
-      const Eigen::Vector2d step = J.colPivHouseholderQr().solve(-m);
-      q(0) += step(0);
-      q(1) += step(1);
-    }
+    q = AimOpticalAxisAt(X_0C, s.X_0B_true.translation(), q, 1e-7, 20);
     const std::unique_ptr<vision::render::LaserScene> scene = world.SceneAt(ToArray5(q));
     const auto add_scan = [&](vision::render::LaserId id, double cot) {
       vision::render::LaserSceneParameters p = scene->parameters();

@@ -657,5 +657,20 @@ TEST(LaserScene, TraceBatchEqualsTraceBitForBit) {
   }
 }
 
+// X_SB (the gauge block's frame, shared by the scene, the weld cell's truth and the mount
+// calibration): worked by hand for a block at (10, −5) mm turned by 90°: its +x face centre
+// (50, 0, 5) mm in B is 50 mm along y_S from the centre, on top of the 5 mm half height.
+TEST(LaserScene, GaugeBlockFrameIsItsCentreTurnedByTheHeading) {
+  LaserSceneParameters p;
+  p.surface = LaserSurfaceKind::kBoard;
+  p.gauge_block = true;
+  p.gauge_centre_S = Eigen::Vector2d(0.010, -0.005);
+  p.gauge_heading = M_PI / 2;
+  const Eigen::Vector3d p_S = p.X_SB() * Eigen::Vector3d(0.050, 0.0, 0.005);
+  EXPECT_NEAR(p_S.x(), 0.010, 1e-12);
+  EXPECT_NEAR(p_S.y(), 0.045, 1e-12);
+  EXPECT_NEAR(p_S.z(), 0.010, 1e-12);
+}
+
 }  // namespace
 }  // namespace kinevis::vision::render

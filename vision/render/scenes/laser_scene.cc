@@ -215,10 +215,13 @@ LaserScene::LaserScene(const LaserSceneParameters& parameters) : parameters_(par
   batch_fast_path_ = parameters.surface == LaserSurfaceKind::kBlade &&
                      (parameters.curvature_xx != 0.0 || parameters.curvature_yy != 0.0 ||
                       parameters.curvature_xy != 0.0);
-  X_CB_ = parameters.X_CS *
-          Eigen::Translation3d(parameters.gauge_centre_S.x(), parameters.gauge_centre_S.y(),
-                               0.5 * parameters.gauge_size.z()) *
-          Eigen::AngleAxisd(parameters.gauge_heading, Eigen::Vector3d::UnitZ());
+  X_CB_ = parameters.X_CS * parameters.X_SB();
+}
+
+Eigen::Isometry3d LaserSceneParameters::X_SB() const {
+  return Eigen::Isometry3d(
+      Eigen::Translation3d(gauge_centre_S.x(), gauge_centre_S.y(), 0.5 * gauge_size.z()) *
+      Eigen::AngleAxisd(gauge_heading, Eigen::Vector3d::UnitZ()));
 }
 
 double LaserScene::Height(double x_S, double y_S) const {

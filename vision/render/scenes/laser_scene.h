@@ -132,6 +132,10 @@ struct LaserSceneParameters {
   Eigen::Vector2d gauge_centre_S = Eigen::Vector2d::Zero();  // block centre on the board (m)
   double gauge_heading = 0.0;  // rotation of its 100 mm side from x_S about z_S (rad)
   Eigen::Vector3d gauge_size = Eigen::Vector3d(0.100, 0.050, 0.010);  // (m), > 0
+  // The gauge block's frame B in S (calibration/weld_mount/mount_calibration.h): origin at its
+  // centre, gauge_size.z()/2 above the board at gauge_centre_S, x_B turned by gauge_heading from
+  // x_S.
+  Eigen::Isometry3d X_SB() const;
   // Board only: print the dot grid `dots` on it; the grid (dots and their radius) must lie
   // inside the board's extent.
   bool dot_grid = false;
