@@ -180,26 +180,6 @@ CameraCase PerspectiveCase(const Args& args) {
   return c;
 }
 
-// Every leg of `model` is in the image: points at 15, 50 and 85 % of its length project at least
-// margin_px inside it (as `kinevis record hexapod` plans).
-bool LegsInView(const robots::HexapodModel& model, const vision::CameraModel& camera,
-                const Eigen::Isometry3d& X_CB, const Eigen::Isometry3d& X_BP, double margin_px) {
-  const Eigen::Isometry3d X_CP = X_CB * X_BP;
-  for (int j = 0; j < kHexapodLegs; ++j) {
-    const Eigen::Vector3d a = X_CB * model.p_B_A[j];
-    const Eigen::Vector3d b = X_CP * model.p_P_B[j];
-    for (const double t : {0.15, 0.5, 0.85}) {
-      Eigen::Vector2d px;
-      if (camera.Project(a + t * (b - a), &px) != vision::ProjectionStatus::kOk) return false;
-      if (px.x() < margin_px || px.y() < margin_px || px.x() > camera.width() - 1 - margin_px ||
-          px.y() > camera.height() - 1 - margin_px) {
-        return false;
-      }
-    }
-  }
-  return true;
-}
-
 double Median(std::vector<double> v) {
   v.erase(std::remove_if(v.begin(), v.end(), [](double x) { return !std::isfinite(x); }), v.end());
   if (v.empty()) return kNaN;
@@ -603,7 +583,7 @@ int main(int argc, char** argv) {
       plan_options.seed = args.plan_seed;
       plan_options.X_CB = cc.X_CB_drawn;
       plan_options.admissible = [&](const Eigen::Isometry3d& X_BP) {
-        return LegsInView(nominal, camera, cc.X_CB_drawn, X_BP, 10.0);
+        return calibration::AllLegsInView(nominal, camera, cc.X_CB_drawn, X_BP);
       };
       const calibration::PosePlan plan = calibration::PlanCalibrationPoses(nominal, plan_options);
       PrintPlan(plan, args, nominal, cc);

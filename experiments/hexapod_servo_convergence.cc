@@ -98,6 +98,7 @@
 #include "hal/camera/camera_factory.h"
 #include "hal/canopen/canopen_master.h"
 #include "hal/drive/cia402_can_drive.h"
+#include "rigs/hexapod/hexapod_rig.h"
 #include "sim/hexapod_world.h"
 #include "vision/camera/camera_file.h"
 #include "vision/plot/line_plot.h"
@@ -208,143 +209,56 @@ LegPoints ReadPoints(const std::string& path) {
   return p;
 }
 
-// Every leg in the image: points at 15 %, 50 % and 85 % of its length project at least
-// `margin_px` inside it (as `kinevis record hexapod` plans).
-bool LegsInView(const kv::robots::HexapodModel& model, const kv::vision::CameraModel& camera,
-                const Eigen::Isometry3d& X_CB, const Eigen::Isometry3d& X_BP, double margin_px) {
-  const Eigen::Isometry3d X_CP = X_CB * X_BP;
-  for (int j = 0; j < kHexapodLegs; ++j) {
-    const Eigen::Vector3d a = X_CB * model.p_B_A[j];
-    const Eigen::Vector3d b = X_CP * model.p_P_B[j];
-    for (const double t : {0.15, 0.5, 0.85}) {
-      Eigen::Vector2d px;
-      if (camera.Project(a + t * (b - a), &px, nullptr) != kv::vision::ProjectionStatus::kOk) {
-        return false;
-      }
-      if (px.x() < margin_px || px.y() < margin_px || px.x() > camera.width() - 1 - margin_px ||
-          px.y() > camera.height() - 1 - margin_px) {
-        return false;
-      }
-    }
-  }
-  return true;
-}
-
 // One simulated set-up, built afresh for the calibration and for every servo run so that each
-// starts from the same state: a stepped HexapodWorld at home with one camera, the host's six
-// CiA 402 drives on its CAN bus (enabled), and the camera opened as a host would ("sim:NAME").
+// starts from the same state: the kinevis hexapod rig (rigs/hexapod/hexapod_rig.h) on a stepped
+// HexapodWorld at home with one camera, the host's six CiA 402 drives enabled on its CAN bus and
+// the camera opened as a host would ("sim:NAME") — what `kinevis servo hexapod` runs on.
 class SimRig {
  public:
   SimRig(kv::sim::WorldCameraConfig camera, const std::string& tag) {
-    kv::sim::HexapodWorldConfig c;
-    c.network = "servo-convergence-" + tag;
+    auto c = std::make_shared<kv::sim::HexapodWorldConfig>();
+    c->network = "servo-convergence-" + tag;
     camera.name += "-" + tag;
-    c.cameras = {camera};
-    world_ = std::make_unique<kv::sim::HexapodWorld>(c);
-    world_->RegisterCameras([](const kv::robots::HexapodModel& model,
-                               const kv::sim::HexapodPlantState& state,
-                               const Eigen::Isometry3d& X_BC) {
-      return std::make_unique<kv::vision::render::HexapodScene>(model, state.X_BP, X_BC.inverse());
-    });
-    fps_ = camera.fps;
-    camera_ = kv::hal::OpenCamera("sim:" + camera.name, world_->clock());
-    camera_->Open();
-    if (const std::error_code ec = camera_->Start()) {
-      throw std::runtime_error("camera sim:" + camera.name + ": " + ec.message());
-    }
-    kv::hal::canopen::CanopenMasterOptions mo;
-    mo.clock = &world_->clock();
-    mo.cycle_period = 4ms;
-    mo.cycle_timeout = 3500us;
-    master_ = std::make_unique<kv::hal::canopen::CanopenMaster>(world_->ConnectHost(), mo);
-    for (int j = 0; j < kHexapodLegs; ++j) {
-      kv::hal::Cia402CanDriveConfig d;
-      d.node = static_cast<uint8_t>(world_->config().nodes[j]);
-      d.drive.name = "leg" + std::to_string(j);
-      d.drive.scaling.position_counts_per_unit = world_->config().counts_per_metre;
-      d.drive.scaling.velocity_counts_per_unit = world_->config().counts_per_metre;
-      d.drive.command_timeout = 500ms;
-      d.heartbeat_producer = 20ms;
-      master_->AddDrive(d);
-    }
-    master_->ConfigureAll();
-    if (master_->EnableAll(1000ms)) throw std::runtime_error(tag + ": cannot enable the drives");
+    c->cameras = {camera};
+    kv::rigs::HexapodRigOptions o;
+    o.config = "servo-convergence " + tag;
+    o.world = c;
+    rig_ = std::make_unique<kv::rigs::HexapodRig>(o);
+    rig_->Enable();
   }
 
-  kv::sim::HexapodWorld& world() { return *world_; }
-  kv::hal::canopen::CanopenMaster& master() { return *master_; }
-  kv::hal::Camera& camera() { return *camera_; }
-  const kv::robots::HexapodModel& nominal() const { return world_->nominal_model(); }
-
-  Vector6d Readings() const {
-    Vector6d s;
-    for (int j = 0; j < kHexapodLegs; ++j) s[j] = master_->can_drives()[j]->status().position;
-    return s;
-  }
+  kv::sim::HexapodWorld& world() { return *rig_->world(); }
+  kv::hal::canopen::CanopenMaster& master() { return rig_->master(); }
+  kv::hal::Camera& camera() { return rig_->camera(); }
+  const kv::robots::HexapodModel& nominal() const { return rig_->nominal(); }
+  Vector6d Readings() const { return rig_->Readings(); }
   // The leg lengths the host knows: nominal q0 + the drive readings.
   Vector6d HostLegLengths() const {
     return kv::robots::LegLengthsFromJointPositions(nominal(), Readings());
   }
 
-  // Drives the platform to X_BP as the host can: nominal inverse kinematics, the legs in cyclic
-  // synchronous position along a cosine ramp whose fastest leg peaks at `speed` (a step would
-  // trip the drives' following-error supervision), then 0.2 s of settling. Throws when a drive
-  // faults or the pose is out of the nominal strokes.
+  // Drives the platform to X_BP as the host can: nominal inverse kinematics, the rig's cosine
+  // ramp whose fastest leg peaks at `speed`, then 0.2 s of settling. Throws when a drive faults or
+  // the pose is out of the nominal strokes.
   void MoveTo(const Eigen::Isometry3d& X_BP, double speed) {
     kv::robots::HexapodData ik;
     const kv::robots::Reachability reach = kv::robots::InverseKinematics(nominal(), X_BP, &ik);
     if (!reach.ok()) {
       throw std::runtime_error("move: pose not reachable: " + reach.Describe(nominal(), ik.q));
     }
-    const Vector6d s = kv::robots::JointPositionsFromLegLengths(nominal(), ik.q);
-    const Vector6d s0 = Readings();
-    for (int j = 0; j < kHexapodLegs; ++j) {
-      auto& d = master_->can_drives()[j];
-      d->SetTargetPosition(s0[j]);
-      if (const std::error_code ec = d->SetMode(kv::hal::DriveMode::kCyclicSynchronousPosition)) {
-        throw std::runtime_error("move: " + d->name() + ": " + ec.message());
-      }
-    }
-    const double duration =
-        std::max(0.05, kv::common::kPi / 2 * (s - s0).cwiseAbs().maxCoeff() / speed);
-    const kv::common::Duration start = world_->clock().Now();
-    std::string fault;
-    master_->RunCyclesUntil(start + kv::common::FromSeconds(duration + 0.2), [&] {
-      const double t =
-          std::min(1.0, kv::common::ToSeconds(world_->clock().Now() - start) / duration);
-      const double a = 0.5 * (1 - std::cos(kv::common::kPi * t));
-      for (int j = 0; j < kHexapodLegs; ++j) {
-        auto& d = master_->can_drives()[j];
-        if (d->lifecycle() == kv::common::DeviceLifecycle::kFault) {
-          fault = d->name() + " faulted";
-          return true;
-        }
-        d->SetTargetPosition(s0[j] + a * (s[j] - s0[j]));
-      }
-      return false;
-    });
-    if (!fault.empty()) throw std::runtime_error("move: " + fault);
+    const std::string stopped =
+        rig_->MoveTo(kv::robots::JointPositionsFromLegLengths(nominal(), ik.q), speed, 0.2);
+    if (!stopped.empty()) throw std::runtime_error("move: " + stopped);
   }
 
   // A frame captured after now (the drives keep cycling, holding their targets, meanwhile).
   void GrabFresh(kv::hal::Image* image) {
-    const kv::common::Duration wanted = world_->clock().Now();
-    master_->RunCyclesUntil(wanted + kv::common::FromSeconds(1.0 / fps_), [] { return false; });
-    for (int attempt = 0; attempt < 10; ++attempt) {
-      if (const std::error_code ec = camera_->Grab(image, 2000ms)) {
-        throw std::runtime_error("camera " + camera_->name() + ": " + ec.message());
-      }
-      if (image->timestamp >= wanted) return;
-    }
-    throw std::runtime_error("camera " + camera_->name() + ": no fresh frame");
+    const std::string failed = rig_->GrabFresh(image);
+    if (!failed.empty()) throw std::runtime_error("camera " + camera().name() + ": " + failed);
   }
 
  private:
-  // Destroyed in reverse: the master (its bus is the world's), the camera, then the world.
-  std::unique_ptr<kv::sim::HexapodWorld> world_;
-  std::unique_ptr<kv::hal::Camera> camera_;
-  std::unique_ptr<kv::hal::canopen::CanopenMaster> master_;
-  double fps_ = 10.0;
+  std::unique_ptr<kv::rigs::HexapodRig> rig_;
 };
 
 // One camera at one image-noise level.
@@ -372,7 +286,7 @@ Calibrated CalibrateLive(const Args& args, const Setup& setup, const Eigen::Isom
   po.X_BP_nominal = rig.world().config().X_BP_home;
   po.X_CB = X_CB_hand;
   po.admissible = [&](const Eigen::Isometry3d& X_BP) {
-    return LegsInView(nominal, *setup.model, X_CB_hand, X_BP, 10.0);
+    return kv::calibration::AllLegsInView(nominal, *setup.model, X_CB_hand, X_BP);
   };
   const kv::calibration::PosePlan plan = kv::calibration::PlanCalibrationPoses(nominal, po);
   for (const std::string& w : plan.warnings) spdlog::warn("{}: planner: {}", setup.tag, w);
@@ -1017,7 +931,7 @@ int main(int argc, char** argv) {
         char tag[64];
         std::snprintf(tag, sizeof tag, "%s-n%g", short_name.c_str(), sigma);
         setup.tag = tag;
-        if (!LegsInView(nominal, *setup.model, X_CB_true, target, 10.0)) {
+        if (!kv::calibration::AllLegsInView(nominal, *setup.model, X_CB_true, target)) {
           spdlog::warn("{}: the target pose does not show every leg", setup.tag);
         }
 

@@ -5,39 +5,25 @@
 // camera's distance — on the simulated world in this process or on the real robot, by the file
 // given to --config (docs/diamond-calibration.md, docs/diamond-control.md).
 
-#include <spdlog/spdlog.h>
-#include <sys/resource.h>
-#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
-#include <fstream>
-#include <limits>
 #include <memory>
-#include <mutex>
 #include <stdexcept>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "apps/kinevis/cli_common.h"
 #include "apps/kinevis/commands.h"
 #include "apps/kinevis/diamond_demo.h"
 #include "calibration/diamond/camera_placement.h"
-#include "calibration/diamond/diamond_calibration_io.h"
 #include "common/units.h"
-#include "hal/common/error.h"
-#include "hal/common/realtime.h"
-#include "hal/drive/rs485_drive.h"
 #include "rigs/diamond/diamond_rig.h"
 #include "sim/diamond_world.h"
 #include "vision/camera/camera_file.h"
-#include "vision/diamond/spherical_positioning.h"
 
 namespace kinevis::cli {
 

@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "common/units.h"
+#include "vision/camera/camera_model.h"
 #include "vision/render/scenes/hexapod_scene.h"
 
 namespace kinevis::calibration {
@@ -315,6 +316,24 @@ PosePlan PlanCalibrationPoses(const robots::HexapodModel& model,
     }
   }
   return plan;
+}
+
+bool AllLegsInView(const robots::HexapodModel& model, const vision::CameraModel& camera,
+                   const Eigen::Isometry3d& X_CB, const Eigen::Isometry3d& X_BP, double margin_px) {
+  const Eigen::Isometry3d X_CP = X_CB * X_BP;
+  for (int j = 0; j < robots::kHexapodLegs; ++j) {
+    const Eigen::Vector3d a = X_CB * model.p_B_A[j];
+    const Eigen::Vector3d b = X_CP * model.p_P_B[j];
+    for (const double t : {0.15, 0.5, 0.85}) {
+      Eigen::Vector2d px;
+      if (camera.Project(a + t * (b - a), &px) != vision::ProjectionStatus::kOk) return false;
+      if (px.x() < margin_px || px.y() < margin_px || px.x() > camera.width() - 1 - margin_px ||
+          px.y() > camera.height() - 1 - margin_px) {
+        return false;
+      }
+    }
+  }
+  return true;
 }
 
 }  // namespace kinevis::calibration

@@ -32,6 +32,10 @@
 #include "calibration/hexapod/leg_calibration.h"
 #include "robots/hexapod/hexapod_model.h"
 
+namespace kinevis::vision {
+class CameraModel;
+}  // namespace kinevis::vision
+
 namespace kinevis::calibration {
 
 struct PosePlannerOptions {
@@ -85,6 +89,13 @@ PosePlan PlanCalibrationPoses(const robots::HexapodModel& model,
 // cond(D_inv) <= max_jacobian_condition. Does not call options.admissible.
 bool PoseIsAdmissible(const robots::HexapodModel& model, const Eigen::Isometry3d& X_BP,
                       const PosePlannerOptions& options);
+
+// The usual `admissible` test of a recording: every leg of `model` at X_BP is in the image of
+// `camera` at X_CB — points at 15 %, 50 % and 85 % of its length (its very ends may be cut: the
+// edges are not searched there) project at least `margin_px` inside the image.
+bool AllLegsInView(const robots::HexapodModel& model, const vision::CameraModel& camera,
+                   const Eigen::Isometry3d& X_CB, const Eigen::Isometry3d& X_BP,
+                   double margin_px = 10.0);
 
 // Smallest distance between the segments [p0, p1] and [q0, q1] (m).
 double SegmentSegmentDistance(const Eigen::Vector3d& p0, const Eigen::Vector3d& p1,

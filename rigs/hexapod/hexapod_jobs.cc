@@ -37,27 +37,6 @@ using robots::kHexapodLegs;
 
 // --- record -------------------------------------------------------------------------------------
 
-// Every leg is in the image: points at 15 %, 50 % and 85 % of its length project at least
-// `margin_px` inside it (its very ends may be cut: the edges are not searched there).
-bool LegsInView(const robots::HexapodModel& model, const vision::CameraModel& camera,
-                const Eigen::Isometry3d& X_CB, const Eigen::Isometry3d& X_BP, double margin_px) {
-  const Eigen::Isometry3d X_CP = X_CB * X_BP;
-  for (int j = 0; j < kHexapodLegs; ++j) {
-    const Eigen::Vector3d a = X_CB * model.p_B_A[j];
-    const Eigen::Vector3d b = X_CP * model.p_P_B[j];
-    for (const double t : {0.15, 0.5, 0.85}) {
-      const Eigen::Vector3d p = a + t * (b - a);
-      Eigen::Vector2d px;
-      if (camera.Project(p, &px, nullptr) != vision::ProjectionStatus::kOk) return false;
-      if (px.x() < margin_px || px.y() < margin_px || px.x() > camera.width() - 1 - margin_px ||
-          px.y() > camera.height() - 1 - margin_px) {
-        return false;
-      }
-    }
-  }
-  return true;
-}
-
 calibration::RobustLoss ParseLoss(const std::string& text) {
   if (text == "tukey") return calibration::RobustLoss::kTukey;
   if (text == "huber") return calibration::RobustLoss::kHuber;
@@ -85,7 +64,7 @@ HexapodRecordSummary RecordHexapodDataset(HexapodRig* rig, const HexapodRecordOp
   plan_options.X_CB = X_CB_hint;
   const vision::CameraModel* camera = &rig->camera_model();
   plan_options.admissible = [&](const Eigen::Isometry3d& X_BP) {
-    return LegsInView(nominal, *camera, X_CB_hint, X_BP, 10.0);
+    return calibration::AllLegsInView(nominal, *camera, X_CB_hint, X_BP);
   };
   const calibration::PosePlan plan = calibration::PlanCalibrationPoses(nominal, plan_options);
   summary.warnings = plan.warnings;

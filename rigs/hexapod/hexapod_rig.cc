@@ -38,10 +38,12 @@ HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.
   std::chrono::milliseconds heartbeat{20};
   std::string camera_source;
 
-  if (config_path_.empty() || IsWorldConfig(config_path_)) {
+  if (options.world || config_path_.empty() || IsWorldConfig(config_path_)) {
     // Simulated: the world in this process, stepped (its clock advances when the host waits).
     sim::HexapodWorldConfig config;
-    if (!config_path_.empty()) {
+    if (options.world) {
+      config = *options.world;
+    } else if (!config_path_.empty()) {
       config = sim::LoadHexapodWorldConfig(config_path_);
     } else {
       config.cameras = sim::DefaultHexapodCameras();

@@ -29,7 +29,8 @@ class CanopenMaster;
 }  // namespace kinevis::hal
 namespace kinevis::sim {
 class HexapodWorld;
-}
+struct HexapodWorldConfig;
+}  // namespace kinevis::sim
 namespace kinevis::vision {
 class CameraModel;
 }
@@ -39,6 +40,9 @@ namespace kinevis::rigs {
 struct HexapodRigOptions {
   std::string config;  // a world config (simulated) or a deployment file (real hardware)
   std::string camera;  // camera name; empty: the first of the file
+  // A simulated world from this config in memory (the experiments' sweeps over cameras and
+  // noise); when set, `config` only names it in messages.
+  std::shared_ptr<const sim::HexapodWorldConfig> world;
 };
 
 class HexapodRig {

@@ -65,25 +65,6 @@ Eigen::Isometry3d DrawnX_CB() {
       .inverse();
 }
 
-bool LegsInView(const robots::HexapodModel& model, const vision::CameraModel& camera,
-                const Eigen::Isometry3d& X_CB, const Eigen::Isometry3d& X_BP) {
-  constexpr double kMarginPx = 10.0;
-  const Eigen::Isometry3d X_CP = X_CB * X_BP;
-  for (int j = 0; j < kHexapodLegs; ++j) {
-    const Eigen::Vector3d a = X_CB * model.p_B_A[j];
-    const Eigen::Vector3d b = X_CP * model.p_P_B[j];
-    for (const double t : {0.15, 0.5, 0.85}) {
-      Eigen::Vector2d px;
-      if (camera.Project(a + t * (b - a), &px) != vision::ProjectionStatus::kOk) return false;
-      if (px.x() < kMarginPx || px.y() < kMarginPx || px.x() > camera.width() - 1 - kMarginPx ||
-          px.y() > camera.height() - 1 - kMarginPx) {
-        return false;
-      }
-    }
-  }
-  return true;
-}
-
 std::mt19937_64 Generator(int draw, int variant, int pass, int pose) {
   std::seed_seq s{kSeed,
                   static_cast<unsigned>(draw),
@@ -149,7 +130,7 @@ Figures RunDraw(int draw, bool perturb) {
   plan_options.seed = 1;
   plan_options.X_CB = X_CB_drawn;
   plan_options.admissible = [&](const Eigen::Isometry3d& X_BP) {
-    return LegsInView(nominal, camera, X_CB_drawn, X_BP);
+    return AllLegsInView(nominal, camera, X_CB_drawn, X_BP);
   };
   const PosePlan plan = PlanCalibrationPoses(nominal, plan_options);
   EXPECT_EQ(plan.X_BP.size(), 20u);

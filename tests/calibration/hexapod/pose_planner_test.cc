@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "common/units.h"
+#include "vision/camera/pinhole_camera.h"
 #include "vision/render/scenes/hexapod_scene.h"
 
 namespace kinevis::calibration {
@@ -181,6 +182,39 @@ TEST(PosePlannerTest, SegmentDistanceMatchesDenseSampling) {
     EXPECT_LE(exact, brute + 1e-12) << trial;
     EXPECT_GE(exact, brute - 3.0 * (p1 - p0).norm() / kN) << trial;
   }
+}
+
+// AllLegsInView against the camera's own projection, worked by hand: a pinhole 1.5 m in front of
+// the robot looking at it sees every leg; turned round (looking away) it sees none; a margin
+// larger than half the image admits nothing; a camera far to the side with a narrow view loses
+// the legs at the image's edge.
+TEST(PosePlanner, AllLegsInViewIsWhatTheCameraProjectsInsideTheMargin) {
+  const robots::HexapodModel model = robots::HexapodModel::Default();
+  const Eigen::Isometry3d X_BP = model.NominalPose();
+  vision::PinholeBrownParameters p;
+  p.width = 1024;
+  p.height = 780;
+  p.fx = p.fy = 700.0;
+  p.cx = 511.5;
+  p.cy = 389.5;
+  const vision::PinholeBrownCamera camera(p);
+  const Eigen::Vector3d target(0.0, 0.0, 0.2);
+  const Eigen::Isometry3d X_CB = vision::render::CameraLookingAt(Eigen::Vector3d(0.0, -1.5, 0.6),
+                                                                 target, Eigen::Vector3d::UnitZ())
+                                     .inverse();
+  EXPECT_TRUE(AllLegsInView(model, camera, X_CB, X_BP));
+  const Eigen::Isometry3d X_CB_away =
+      vision::render::CameraLookingAt(Eigen::Vector3d(0.0, -1.5, 0.6),
+                                      Eigen::Vector3d(0.0, -3.0, 0.6), Eigen::Vector3d::UnitZ())
+          .inverse();
+  EXPECT_FALSE(AllLegsInView(model, camera, X_CB_away, X_BP));
+  EXPECT_FALSE(AllLegsInView(model, camera, X_CB, X_BP, 400.0));
+  // Aimed 0.5 m beside the robot from 0.8 m: the nearest legs fall outside the 1024 px width.
+  const Eigen::Isometry3d X_CB_aside =
+      vision::render::CameraLookingAt(Eigen::Vector3d(0.5, -0.8, 0.3),
+                                      Eigen::Vector3d(0.5, 0.0, 0.3), Eigen::Vector3d::UnitZ())
+          .inverse();
+  EXPECT_FALSE(AllLegsInView(model, camera, X_CB_aside, X_BP));
 }
 
 }  // namespace
