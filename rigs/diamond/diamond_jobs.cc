@@ -238,7 +238,7 @@ DiamondRecordSummary RecordDiamondDataset(DiamondRig* rig, const DiamondRecordOp
     spdlog::debug("record diamond: sample {}/{} at {}", k + 1, tasks.size(), FormatTaskDeg(task));
   }
   if (!summary.hardware_fault) rig->MoveTo(home, o.speed);
-  rig->Disable();
+  rig->Release();
   summary.wall_seconds = WallSince(t0);
   return summary;
 }
@@ -579,7 +579,11 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
   if (o.rt_lock_memory) run.realtime += "; " + locked.grant().message;
 
   if (o.law == DiamondServoLaw::kTaskPd) {
-    control::DiamondTaskPdLaw law(controller.model, line);
+    // Settling on the line's end to two encoder counts can take more than the default second
+    // when the drive line is slow (an RS485 bus shared with other traffic, a loaded host).
+    control::DiamondPdOptions pd;
+    pd.settle_timeout_s = 2.0;
+    control::DiamondTaskPdLaw law(controller.model, line, pd);
     run.report = loop.Run(&law, [&](const control::DiamondLoopSample& s) {
       control::MarkerFrame frame;
       const bool polled = source.Poll(rig->clock().Now(), &frame);
@@ -625,6 +629,10 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
       }
     }
   }
+  // The safe state at once: the work below (the camera worker's shutdown, which may wait for a
+  // frame, and the statistics) runs no bus cycles, and enabled drives would fault on the lost
+  // heartbeat meanwhile and be found in fault by the next job.
+  rig->Release();
   if (async != nullptr && run.camera_error.empty()) run.camera_error = async->error();
   camera_source.reset();  // the worker stops before the rig's camera is used again
   run.measured_points = static_cast<int>(measured.size());

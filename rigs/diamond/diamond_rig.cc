@@ -13,6 +13,7 @@
 #include "hal/camera/camera_factory.h"
 #include "hal/common/error.h"
 #include "hal/drive/rs485_drive.h"
+#include "rigs/deployment.h"
 #include "rigs/rig_camera.h"
 #include "robots/io/robot_description.h"
 #include "sim/diamond_world.h"
@@ -23,11 +24,6 @@ namespace kinevis::rigs {
 namespace {
 
 using namespace std::chrono_literals;
-
-bool IsWorldConfig(const std::string& path) {
-  sim::internal::WorldConfigReader r(path, "diamond");
-  return r.Has("world");
-}
 
 // config/diamond-sim.yaml's camera, for the built-in world (DiamondWorldConfig has none): the
 // world config camera model at the seed's placement, 45° towards the RCM, 0.4462 m away.
@@ -72,7 +68,7 @@ DiamondRig::DiamondRig(const DiamondRigOptions& options) : config_path_(options.
   std::string camera_source;
   double marker_half_side_m = 0.005;
 
-  if (config_path_.empty() || IsWorldConfig(config_path_)) {
+  if (IsWorldConfig(config_path_, "diamond")) {
     sim::DiamondWorldConfig config;
     if (!config_path_.empty()) {
       config = sim::LoadDiamondWorldConfig(config_path_);
@@ -114,60 +110,54 @@ DiamondRig::DiamondRig(const DiamondRigOptions& options) : config_path_(options.
     camera_source = "sim:" + camera.name;
     clock_ = &world_->clock();
   } else {
-    // A deployment file (docs/diamond-calibration.md, "Command line").
-    sim::internal::WorldConfigReader r(config_path_, "diamond");
-    if (r.Text("rig", "") != "diamond") {
-      r.Problem("rig: expected `rig: diamond` (or `world: diamond` for a simulated world)");
-    }
-    robot_description_ = r.Path("robot");
+    // A deployment file (docs/deployment.md, docs/diamond-calibration.md "Command line").
+    DeploymentFile file(config_path_, "diamond");
+    robot_description_ = file.RobotDescription(/*required=*/false);
     if (!robot_description_.empty()) {
       try {
         nominal_ = robots::LoadDiamondDescription(robot_description_).model;
       } catch (const std::exception& e) {
-        r.Problem(std::string("robot: ") + e.what());
+        file.Problem(std::string("robot: ") + e.what());
       }
     }
-    drives.backend = r.Text("drives.backend", "");
-    if (drives.backend.empty()) {
-      r.Problem("drives.backend: missing (e.g. modbus-rtu:/dev/ttyUSB0@3000000,8E1)");
-    }
-    const std::vector<double> units = r.Numbers("drives.units", 2, {1, 2});
-    for (int i = 0; i < robots::kDiamondJoints; ++i) drives.units[i] = static_cast<int>(units[i]);
-    drives.counts_per_rad = r.Number("drives.counts_per_rad", drives.counts_per_rad);
-    const double cycle_ms = r.Number("drives.cycle_ms", 1.0);
-    if (!(cycle_ms >= 0.25 && cycle_ms <= 100))
-      r.Problem("drives.cycle_ms: must be in [0.25, 100]");
-    cycle_period_s_ = cycle_ms * 1e-3;
-    r.CheckKeys("drives", {"backend", "units", "counts_per_rad", "cycle_ms"});
-    camera_name_ = r.Text("camera.name", "camera");
-    camera_source = r.Text("camera.source", "");
-    if (camera_source.empty()) r.Problem("camera.source: missing (e.g. v4l2:/dev/video0)");
-    camera_model_spec_ = r.Text("camera.model", "");
-    if (camera_model_spec_.empty()) {
-      r.Problem("camera.model: missing (a camera model file or builtin:NAME)");
-    } else if (camera_model_spec_.rfind("builtin:", 0) != 0) {
-      camera_model_spec_ = r.Path("camera.model");
-    }
-    if (!r.Has("camera.pose")) {
-      r.Problem("camera.pose: missing (the camera's pose in the RCM frame O, measured)");
-    }
-    X_OC_ = r.Pose("camera.pose", X_OC_);
+    DrivesSection ds;
+    ds.ids_key = "units";
+    ds.default_ids = {1, 2};
+    ds.max_id = 247;  // Modbus unit ids
+    ds.counts_key = "counts_per_rad";
+    ds.default_counts = drives.counts_per_rad;
+    ds.default_cycle_ms = 1.0;
+    ds.min_cycle_ms = 0.25;
+    ds.heartbeat = false;
+    ds.backend_example = "modbus-rtu:/dev/ttyUSB0@3000000,8E1";
+    const DeploymentDrives d = file.Drives(ds);
+    drives.backend = d.backend;
+    for (int i = 0; i < robots::kDiamondJoints; ++i)
+      drives.units[i] = d.ids[static_cast<size_t>(i)];
+    drives.counts_per_rad = d.counts_per_unit;
+    cycle_period_s_ = d.cycle_ms * 1e-3;
+    CameraSection cs;
+    cs.pose_meaning = "the camera's pose in the RCM frame O, measured";
+    cs.default_fps = camera_fps_;
+    cs.extra_keys = {"distance_source", "marker_half_side_mm"};
+    const DeploymentCamera camera = file.Camera(cs);
+    camera_name_ = camera.name;
+    camera_source = camera.source;
+    camera_model_spec_ = camera.model;
+    X_OC_ = camera.pose;
+    camera_fps_ = camera.fps;
+    sim::internal::WorldConfigReader& r = file.reader();
     camera_distance_source_ = r.Text("camera.distance_source", "");
     if (camera_distance_source_.empty()) {
-      r.Problem(
+      file.Problem(
           "camera.distance_source: missing (how the camera's distance from the RCM was measured: "
           "it fixes the scale of R)");
     }
-    camera_fps_ = r.Number("camera.fps", camera_fps_);
-    if (!(camera_fps_ > 0)) r.Problem("camera.fps: must be > 0");
     marker_half_side_m = r.Number("camera.marker_half_side_mm", 5.0) * 1e-3;
-    if (!(marker_half_side_m > 0)) r.Problem("camera.marker_half_side_mm: must be > 0");
-    r.CheckKeys("camera", {"name", "source", "model", "pose", "distance_source", "fps",
-                           "marker_half_side_mm"});
-    r.CheckKeys("", {"rig", "robot", "drives", "camera"});
+    if (!(marker_half_side_m > 0)) file.Problem("camera.marker_half_side_mm: must be > 0");
     const std::string bad = drives.Validate();
-    if (!bad.empty()) r.Problem("drives: " + bad);
-    r.ThrowIfProblems();
+    if (!bad.empty()) file.Problem("drives: " + bad);
+    file.Finish({"robot", "drives", "camera"});
     clock_ = &common::SteadyClock::Instance();
   }
 
@@ -182,15 +172,10 @@ DiamondRig::DiamondRig(const DiamondRigOptions& options) : config_path_(options.
 
 DiamondRig::~DiamondRig() {
   try {
-    Disable();
     // Disabled drives need no watchdog: switch it off, or a drive left on the line faults with
     // a lost heartbeat (0x8130) 200 ms after this process exits, and the next job finds it in
     // fault.
-    if (bus_) {
-      if (const std::error_code ec = bus_->Close()) {
-        spdlog::warn("diamond: closing the drive line on exit: {}", ec.message());
-      }
-    }
+    Release();
   } catch (const std::exception& e) {
     spdlog::warn("diamond: disabling the drives on exit: {}", e.what());
   }
@@ -228,7 +213,14 @@ control::DiamondLoopReport DiamondRig::MoveTo(const Eigen::Vector2d& task, doubl
   line.to = task;
   // The quintic's mean rate is distance / duration.
   line.duration_s = std::max(0.2, (task - line.from).cwiseAbs().maxCoeff() / speed);
-  control::DiamondTaskPdLaw law(m, line);
+  // A move only has to get near its end: settled within 5e-4 rad (~0.1 mm at R = 0.2 m, ~10
+  // encoder counts of the seed's drives), where the line's law takes over; the law's default
+  // (1e-4 rad, two counts) is for the line's own end and can take longer than a move should
+  // when the bus is slow.
+  control::DiamondPdOptions pd;
+  pd.settle_tolerance = 5e-4;
+  pd.settle_timeout_s = 2.0;
+  control::DiamondTaskPdLaw law(m, line, pd);
   control::DiamondLoopOptions o;
   // Point-to-point moves need no 1 kHz: the seed's 2.5 ms (fewer bus exchanges per move).
   o.cycle_period_s = std::max(cycle_period_s_, 0.0025);
@@ -264,6 +256,15 @@ std::string DiamondRig::GrabFresh(hal::Image* image) {
 
 void DiamondRig::Hold(double seconds) {
   bus_->RunCyclesUntil(clock_->Now() + common::FromSeconds(seconds), [] { return false; });
+}
+
+void DiamondRig::Release() {
+  Disable();
+  if (bus_) {
+    if (const std::error_code ec = bus_->Close()) {
+      spdlog::warn("diamond: releasing the drive line: {}", ec.message());
+    }
+  }
 }
 
 void DiamondRig::Disable() {

@@ -110,6 +110,10 @@ class DiamondRig {
   void Hold(double seconds);
   // Disables both drives.
   void Disable();
+  // The drives' safe state between jobs: disabled and their communication watchdog switched off,
+  // so that a pause in the bus cycles (the job's own work after its loop, the process exiting)
+  // does not fault them with a lost heartbeat (0x8130). Enable() brings them up again.
+  void Release();
 
  private:
   std::string config_path_;

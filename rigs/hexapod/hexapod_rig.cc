@@ -12,6 +12,7 @@
 #include "hal/canopen/canopen_master.h"
 #include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
+#include "rigs/deployment.h"
 #include "rigs/rig_camera.h"
 #include "robots/io/robot_description.h"
 #include "sim/hexapod_world.h"
@@ -23,12 +24,6 @@ namespace {
 
 using namespace std::chrono_literals;
 
-// Is the file a world config (`world:` key) rather than a deployment file (`rig:`)?
-bool IsWorldConfig(const std::string& path) {
-  sim::internal::WorldConfigReader r(path, "hexapod");
-  return r.Has("world");
-}
-
 }  // namespace
 
 HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.config) {
@@ -38,7 +33,7 @@ HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.
   std::chrono::milliseconds heartbeat{20};
   std::string camera_source;
 
-  if (options.world || config_path_.empty() || IsWorldConfig(config_path_)) {
+  if (options.world || IsWorldConfig(config_path_, "hexapod")) {
     // Simulated: the world in this process, stepped (its clock advances when the host waits).
     sim::HexapodWorldConfig config;
     if (options.world) {
@@ -85,59 +80,48 @@ HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.
     camera_source = "sim:" + camera->name;
     clock_ = &world_->clock();
   } else {
-    // Real hardware: a deployment file (docs/hexapod-calibration.md).
-    sim::internal::WorldConfigReader r(config_path_, "hexapod");
-    if (r.Text("rig", "") != "hexapod") {
-      r.Problem("rig: expected `rig: hexapod` (or `world: hexapod` for a simulated world)");
-    }
-    robot_description_ = r.Path("robot");
-    if (robot_description_.empty()) {
-      r.Problem("robot: missing (the nominal robot description file)");
-    } else {
+    // Real hardware: a deployment file (docs/deployment.md, docs/hexapod-rig.md).
+    DeploymentFile file(config_path_, "hexapod");
+    robot_description_ = file.RobotDescription();
+    if (!robot_description_.empty()) {
       try {
         const robots::HexapodDescription d = robots::LoadHexapodDescription(robot_description_);
         nominal_ = d.model;
         X_BP_home_ = d.X_BP_home;
       } catch (const std::exception& e) {
-        r.Problem(std::string("robot: ") + e.what());
+        file.Problem(std::string("robot: ") + e.what());
       }
     }
-    drives_backend = r.Text("drives.backend", "");
-    if (drives_backend.empty()) r.Problem("drives.backend: missing (e.g. socketcan:can0)");
-    const std::vector<double> n =
-        r.Numbers("drives.nodes", robots::kHexapodLegs, {1, 2, 3, 4, 5, 6});
-    for (int j = 0; j < robots::kHexapodLegs; ++j) nodes[j] = static_cast<int>(n[j]);
-    counts_per_metre = r.Number("drives.counts_per_metre", counts_per_metre);
-    if (!(counts_per_metre > 0)) r.Problem("drives.counts_per_metre: must be > 0");
-    const double cycle_ms = r.Number("drives.cycle_ms", 4.0);
-    if (!(cycle_ms >= 1 && cycle_ms <= 100)) r.Problem("drives.cycle_ms: must be in [1, 100]");
-    cycle_period_ = std::chrono::microseconds(static_cast<long>(cycle_ms * 1000));
-    const double heartbeat_ms = r.Number("drives.heartbeat_ms", 20);
-    if (!(heartbeat_ms >= 1 && heartbeat_ms <= 1000)) {
-      r.Problem("drives.heartbeat_ms: must be in [1, 1000]");
-    }
-    heartbeat = std::chrono::milliseconds(static_cast<long>(heartbeat_ms));
-    r.CheckKeys("drives", {"backend", "nodes", "counts_per_metre", "cycle_ms", "heartbeat_ms"});
-    camera_name_ = r.Text("camera.name", "camera");
-    camera_source = r.Text("camera.source", "");
-    if (camera_source.empty()) r.Problem("camera.source: missing (e.g. v4l2:/dev/video0)");
-    camera_model_spec_ = r.Text("camera.model", "");
-    if (camera_model_spec_.empty()) {
-      r.Problem("camera.model: missing (a camera model file or builtin:NAME)");
-    } else if (camera_model_spec_.rfind("builtin:", 0) != 0) {
-      camera_model_spec_ = r.Path("camera.model");
-    }
-    if (!r.Has("camera.pose")) {
-      r.Problem("camera.pose: missing (the camera's pose in the base frame, measured by hand)");
-    }
-    X_BC_hint_ = r.Pose("camera.pose", X_BC_hint_);
-    camera_fps_ = r.Number("camera.fps", camera_fps_);
-    if (!(camera_fps_ > 0)) r.Problem("camera.fps: must be > 0");
+    DrivesSection ds;
+    ds.ids_key = "nodes";
+    ds.default_ids = {1, 2, 3, 4, 5, 6};
+    ds.max_id = 127;
+    ds.counts_key = "counts_per_metre";
+    ds.default_counts = counts_per_metre;
+    ds.default_cycle_ms = 4.0;
+    ds.backend_example = "socketcan:can0";
+    const DeploymentDrives drives = file.Drives(ds);
+    drives_backend = drives.backend;
+    for (int j = 0; j < robots::kHexapodLegs; ++j) nodes[j] = drives.ids[static_cast<size_t>(j)];
+    counts_per_metre = drives.counts_per_unit;
+    cycle_period_ = std::chrono::microseconds(static_cast<long>(drives.cycle_ms * 1000));
+    heartbeat = std::chrono::milliseconds(static_cast<long>(drives.heartbeat_ms));
+    CameraSection cs;
+    cs.pose_meaning = "the camera's pose in the base frame, measured by hand";
+    cs.default_fps = camera_fps_;
+    cs.extra_keys = {"edge_locator", "edge_blur_px"};
+    const DeploymentCamera camera = file.Camera(cs);
+    camera_name_ = camera.name;
+    camera_source = camera.source;
+    camera_model_spec_ = camera.model;
+    X_BC_hint_ = camera.pose;
+    camera_fps_ = camera.fps;
     // A real camera's blur is not known unless measured: the parabola locator (insensitive to
     // blur) by default, the step-ramp model when the blur is given.
+    sim::internal::WorldConfigReader& r = file.reader();
     edge_options_.edge_blur_px = r.Number("camera.edge_blur_px", 0.0);
     if (!(edge_options_.edge_blur_px >= 0 && edge_options_.edge_blur_px <= 3)) {
-      r.Problem("camera.edge_blur_px: must be in [0, 3] px");
+      file.Problem("camera.edge_blur_px: must be in [0, 3] px");
     }
     const std::string locator =
         r.Text("camera.edge_locator", r.Has("camera.edge_blur_px") ? "step-ramp" : "parabola");
@@ -146,12 +130,9 @@ HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.
     } else if (locator == "parabola") {
       edge_options_.locator = vision::hexapod::EdgeLocator::kParabola;
     } else {
-      r.Problem("camera.edge_locator: '" + locator + "' is not step-ramp or parabola");
+      file.Problem("camera.edge_locator: '" + locator + "' is not step-ramp or parabola");
     }
-    r.CheckKeys("camera",
-                {"name", "source", "model", "pose", "fps", "edge_locator", "edge_blur_px"});
-    r.CheckKeys("", {"rig", "robot", "drives", "camera"});
-    r.ThrowIfProblems();
+    file.Finish({"robot", "drives", "camera"});
     clock_ = &common::SteadyClock::Instance();
   }
 

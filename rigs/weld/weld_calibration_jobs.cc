@@ -16,6 +16,7 @@
 #include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/weld/weld_robot_client.h"
+#include "rigs/deployment.h"
 #include "robots/io/robot_description.h"
 #include "sim/weld_cell_world.h"
 #include "vision/camera/camera_file.h"
@@ -149,10 +150,6 @@ void Moved(WeldRig* rig, const std::string& result, const std::string& where) {
       "scanner-mount --dataset DIR`");
 }
 
-bool IsWorldConfig(const std::string& config) {
-  return config.empty() || sim::internal::WorldConfigReader(config, "weld-cell").Has("world");
-}
-
 robots::Weld5Model DatasetRobot(const calibration::MountDataset& d) {
   if (d.robot_description.empty()) return sim::WeldCellWorldConfig().nominal;
   try {
@@ -250,7 +247,7 @@ std::unique_ptr<WeldRig> OpenGaugeBlockRig(const std::string& config) {
   WeldRigOptions ro;
   ro.config = config;
   ro.workpiece = WeldWorkpiece::kGaugeBlock;
-  if (!IsWorldConfig(config)) RefuseRealCell();
+  if (!IsWorldConfig(config, "weld-cell")) RefuseRealCell();
   if (!config.empty() && sim::LoadWeldCellWorldConfig(config).workpiece.gauge_block) {
     ro.workpiece = WeldWorkpiece::kFromConfig;
   }

@@ -2,7 +2,7 @@
 
 // The weld cell's calibration jobs behind `kinevis record|calibrate scanner` and
 // `kinevis record|calibrate scanner-mount` (seed 004 §3–4). Each runs on a WeldRig (the simulated
-// cell in this process or the real one, docs/weld-cell-rig.md) or on a recorded dataset and returns
+// cell in this process or the real one, docs/deployment.md) or on a recorded dataset and returns
 // a report struct; printing is the caller's.
 
 #include <Eigen/Geometry>

@@ -12,6 +12,7 @@
 #include "hal/camera/camera_factory.h"
 #include "hal/common/error.h"
 #include "hal/weld/weld_robot_client.h"
+#include "rigs/deployment.h"
 #include "rigs/rig_camera.h"
 #include "robots/io/robot_description.h"
 #include "sim/weld_cell_world.h"
@@ -22,18 +23,13 @@ namespace {
 
 using namespace std::chrono_literals;
 
-bool IsWorldConfig(const std::string& path) {
-  sim::internal::WorldConfigReader r(path, "weld-cell");
-  return r.Has("world");
-}
-
 }  // namespace
 
 WeldRig::WeldRig(const WeldRigOptions& options) : config_path_(options.config) {
   std::string robot_backend;
   std::string camera_source;
 
-  if (config_path_.empty() || IsWorldConfig(config_path_)) {
+  if (IsWorldConfig(config_path_, "weld-cell")) {
     sim::WeldCellWorldConfig config;
     if (!config_path_.empty()) config = sim::LoadWeldCellWorldConfig(config_path_);
     switch (options.workpiece) {
@@ -65,42 +61,30 @@ WeldRig::WeldRig(const WeldRigOptions& options) : config_path_(options.config) {
     camera_source = "sim:" + world_->RegisterCamera();
     clock_ = &world_->clock();
   } else {
-    // The real cell: a deployment file (docs/weld-cell-rig.md).
-    sim::internal::WorldConfigReader r(config_path_, "weld-cell");
-    if (r.Text("rig", "") != "weld-cell") {
-      r.Problem("rig: expected `rig: weld-cell` (or `world: weld-cell` for a simulated cell)");
-    }
-    robot_description_ = r.Path("robot");
-    if (robot_description_.empty()) {
-      r.Problem("robot: missing (the nominal robot description file)");
-    } else {
+    // The real cell: a deployment file (docs/deployment.md, docs/deployment.md).
+    DeploymentFile file(config_path_, "weld-cell");
+    robot_description_ = file.RobotDescription();
+    if (!robot_description_.empty()) {
       try {
         nominal_ = robots::LoadWeld5Description(robot_description_).model;
       } catch (const std::exception& e) {
-        r.Problem(std::string("robot: ") + e.what());
+        file.Problem(std::string("robot: ") + e.what());
       }
     }
-    robot_backend = r.Text("welder.backend", "");
-    if (robot_backend.empty())
-      r.Problem("welder.backend: missing (e.g. modbus-tcp:192.168.0.10:502)");
-    r.CheckKeys("welder", {"backend"});
-    camera_source = r.Text("scanner.source", "");
-    if (camera_source.empty()) r.Problem("scanner.source: missing (e.g. v4l2:/dev/video0)");
-    camera_model_spec_ = r.Text("scanner.camera", "");
-    if (camera_model_spec_.empty()) {
-      r.Problem("scanner.camera: missing (the scanner camera's model file or builtin:NAME)");
-    } else if (camera_model_spec_.rfind("builtin:", 0) != 0) {
-      camera_model_spec_ = r.Path("scanner.camera");
-    }
-    if (!r.Has("scanner.nominal_mount")) {
-      r.Problem("scanner.nominal_mount: missing (the CAD pose of the scanner camera on link 5)");
-    }
-    X_5C_nominal_ = r.Pose("scanner.nominal_mount", X_5C_nominal_);
-    camera_fps_ = r.Number("scanner.fps", camera_fps_);
-    if (!(camera_fps_ > 0)) r.Problem("scanner.fps: must be > 0");
-    r.CheckKeys("scanner", {"source", "camera", "nominal_mount", "fps"});
-    r.CheckKeys("", {"rig", "robot", "welder", "scanner"});
-    r.ThrowIfProblems();
+    robot_backend = file.Backend("welder", "modbus-tcp:192.168.0.10:502");
+    CameraSection cs;
+    cs.section = "scanner";
+    cs.model_key = "camera";
+    cs.pose_key = "nominal_mount";
+    cs.pose_meaning = "the CAD pose of the scanner camera on link 5";
+    cs.has_name = false;
+    cs.default_fps = camera_fps_;
+    const DeploymentCamera camera = file.Camera(cs);
+    camera_source = camera.source;
+    camera_model_spec_ = camera.model;
+    X_5C_nominal_ = camera.pose;
+    camera_fps_ = camera.fps;
+    file.Finish({"robot", "welder", "scanner"});
     clock_ = &common::SteadyClock::Instance();
   }
 

@@ -4,7 +4,7 @@
 // weld-run) use it: the nominal robot model, the weld robot's Modbus controller
 // (hal::WeldRobotClient) and the scanner's camera with its model — either a simulated
 // WeldCellWorld in this process (a world config, `world: weld-cell`, or none: the defaults) or the
-// real cell (a deployment file, `rig: weld-cell`; docs/weld-cell-rig.md). The commands cannot tell
+// real cell (a deployment file, `rig: weld-cell`; docs/deployment.md). The commands cannot tell
 // which, except for the two things only a simulation can do for them: set the rotating laser's
 // angle frame by frame (the real scanner sweeps on its own stepper, and the host never needs the
 // angle: eq. (11) finds it from the stripes' intersection), and stand in for the operator who
