@@ -5,6 +5,7 @@
 #include <set>
 #include <stdexcept>
 
+#include "common/yaml_reader.h"
 #include "sim/hexapod_world.h"
 
 namespace kinevis::rigs {
@@ -24,7 +25,7 @@ bool IsWorldConfig(const std::string& path, const std::string& kind) {
 }
 
 DeploymentFile::DeploymentFile(const std::string& path, const std::string& kind)
-    : reader_(std::make_unique<sim::internal::WorldConfigReader>(path, kind)) {
+    : reader_(std::make_unique<common::YamlReader>(path, "deployment file")) {
   const std::string rig = reader_->Text("rig", "");
   if (rig != kind) {
     reader_->Problem("rig: expected `rig: " + kind + "` (or `world: " + kind +
@@ -43,7 +44,7 @@ std::string DeploymentFile::RobotDescription(bool required) {
 }
 
 DeploymentDrives DeploymentFile::Drives(const DrivesSection& spec) {
-  sim::internal::WorldConfigReader& r = *reader_;
+  common::YamlReader& r = *reader_;
   DeploymentDrives d;
   d.backend = r.Text("drives.backend", "");
   if (d.backend.empty()) {
@@ -91,7 +92,7 @@ DeploymentDrives DeploymentFile::Drives(const DrivesSection& spec) {
 }
 
 DeploymentCamera DeploymentFile::Camera(const CameraSection& spec) {
-  sim::internal::WorldConfigReader& r = *reader_;
+  common::YamlReader& r = *reader_;
   const std::string s = spec.section + ".";
   DeploymentCamera c;
   std::vector<std::string> keys = {"source", spec.model_key, spec.pose_key, "fps"};

@@ -5,7 +5,7 @@
 // `drives:` (the motor drives' bus), `camera:` / `scanner:` (a camera, its model and pose),
 // `welder:` (the weld robot's controller). Every rig (hexapod, DIAMOND, weld cell) reads its file
 // through this class, so the sections mean the same thing everywhere and every bad key is named
-// with its file in one message (common::Problems' format, via the world-config reader).
+// with its file in one message (common/yaml_reader.h, the one checked YAML reader).
 //
 // A path whose top level has `world:` is a simulated world's config instead (sim/), read by the
 // world itself: IsWorldConfig() tells them apart, and an empty path means the built-in world.
@@ -15,8 +15,8 @@
 #include <string>
 #include <vector>
 
-namespace kinevis::sim::internal {
-class WorldConfigReader;
+namespace kinevis::common {
+class YamlReader;
 }
 
 namespace kinevis::rigs {
@@ -83,14 +83,14 @@ class DeploymentFile {
   std::string Backend(const std::string& section, const std::string& example);
 
   // Rig-specific keys, and problems the rig finds itself (a description that does not load).
-  sim::internal::WorldConfigReader& reader() { return *reader_; }
+  common::YamlReader& reader() { return *reader_; }
   void Problem(const std::string& text);
   // Checks the top-level keys against `sections` (plus `rig`) and throws std::invalid_argument
   // naming the file and every problem found so far.
   void Finish(const std::vector<std::string>& sections);
 
  private:
-  std::unique_ptr<sim::internal::WorldConfigReader> reader_;
+  std::unique_ptr<common::YamlReader> reader_;
 };
 
 }  // namespace kinevis::rigs

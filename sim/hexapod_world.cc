@@ -57,228 +57,46 @@ void ValidateCameras(const std::vector<WorldCameraConfig>& cameras, common::Prob
 
 // ---- WorldConfigReader
 
-struct WorldConfigReader::Impl {
-  std::string path;
-  YAML::Node root;
-  common::Problems problems;
-
-  // The node at a dotted key; an invalid (undefined) node when it is not there. Read-only walk:
-  // a const Node's operator[] does not insert.
-  YAML::Node Find(const std::string& key) const {
-    YAML::Node cur = YAML::Clone(root);
-    if (key.empty()) return cur;
-    size_t begin = 0;
-    while (true) {
-      const size_t dot = key.find('.', begin);
-      const std::string part = key.substr(begin, dot == std::string::npos ? dot : dot - begin);
-      if (!cur.IsMap()) return YAML::Node(YAML::NodeType::Undefined);
-      const YAML::Node& c = cur;
-      const YAML::Node next = c[part];
-      if (!next) return YAML::Node(YAML::NodeType::Undefined);
-      cur.reset(next);
-      if (dot == std::string::npos) return cur;
-      begin = dot + 1;
-    }
-  }
-
-  double ToNumber(const YAML::Node& n, const std::string& key) {
-    if (n.IsScalar()) {
-      try {
-        const double v = n.as<double>();
-        if (std::isfinite(v)) return v;
-      } catch (const YAML::Exception&) {
-      }
-      problems.Add(key + ": expected a finite number, got '" + n.Scalar() + "'");
-    } else {
-      problems.Add(key + ": expected a number");
-    }
-    return std::nan("");
-  }
-
-  Eigen::Isometry3d ToPose(const YAML::Node& n, const std::string& key) {
-    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-    if (!n.IsMap()) {
-      problems.Add(key + ": expected {position: [x, y, z], rpy_deg: [roll, pitch, yaw]}");
-      return X;
-    }
-    std::vector<double> position{0, 0, 0}, rpy{0, 0, 0};
-    if (n["position"]) position = ToNumbers(n["position"], key + ".position", 3);
-    if (n["rpy_deg"]) rpy = ToNumbers(n["rpy_deg"], key + ".rpy_deg", 3);
-    for (const auto& kv : n) {
-      const std::string k = kv.first.Scalar();
-      if (k != "position" && k != "rpy_deg") problems.Add(key + "." + k + ": unknown key");
-    }
-    X.linear() = (Eigen::AngleAxisd(rpy[2] * common::kDeg, Eigen::Vector3d::UnitZ()) *
-                  Eigen::AngleAxisd(rpy[1] * common::kDeg, Eigen::Vector3d::UnitY()) *
-                  Eigen::AngleAxisd(rpy[0] * common::kDeg, Eigen::Vector3d::UnitX()))
-                     .toRotationMatrix();
-    X.translation() = Eigen::Vector3d(position[0], position[1], position[2]);
-    return X;
-  }
-
-  std::vector<double> ToNumbers(const YAML::Node& n, const std::string& key, size_t count,
-                                bool scalar_ok = false) {
-    std::vector<double> out(count, std::nan(""));
-    if (scalar_ok && n.IsScalar()) {
-      const double v = ToNumber(n, key);
-      std::fill(out.begin(), out.end(), v);
-      return out;
-    }
-    if (!n.IsSequence() || n.size() != count) {
-      problems.Add(key + ": need a list of " + std::to_string(count) + " numbers" +
-                   (scalar_ok ? " (or one number)" : ""));
-      return out;
-    }
-    for (size_t i = 0; i < count; ++i) out[i] = ToNumber(n[i], key + "[" + std::to_string(i) + "]");
-    return out;
-  }
-
-  std::string Resolve(const std::string& file) const {
-    if (file.empty() || file[0] == '/') return file;
-    const size_t slash = path.rfind('/');
-    return slash == std::string::npos ? file : path.substr(0, slash + 1) + file;
-  }
-};
-
 WorldConfigReader::WorldConfigReader(const std::string& path, const std::string& kind)
-    : impl_(std::make_unique<Impl>()) {
-  impl_->path = path;
-  try {
-    impl_->root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    throw std::invalid_argument(path + ": cannot open the world config");
-  } catch (const YAML::Exception& e) {
-    throw std::invalid_argument(path + ": not valid YAML: " + e.what());
-  }
-  if (!impl_->root.IsMap()) throw std::invalid_argument(path + ": expected a YAML mapping");
+    : common::YamlReader(path, "world config") {
   const std::string world = Text("world", kind);
   if (world != kind) {
     throw std::invalid_argument(path + ": world: expected \"" + kind + "\", got \"" + world + "\"");
   }
 }
 
-WorldConfigReader::~WorldConfigReader() = default;
-
-bool WorldConfigReader::Has(const std::string& key) const {
-  return static_cast<bool>(impl_->Find(key));
-}
-
-double WorldConfigReader::Number(const std::string& key, double fallback) {
-  const YAML::Node n = impl_->Find(key);
-  return n ? impl_->ToNumber(n, key) : fallback;
-}
-
-long long WorldConfigReader::Integer(const std::string& key, long long fallback) {
-  const YAML::Node n = impl_->Find(key);
-  if (!n) return fallback;
-  try {
-    if (n.IsScalar()) return n.as<long long>();
-  } catch (const YAML::Exception&) {
-  }
-  impl_->problems.Add(key + ": expected an integer, got '" +
-                      (n.IsScalar() ? n.Scalar() : "a list") + "'");
-  return fallback;
-}
-
-std::string WorldConfigReader::Text(const std::string& key, const std::string& fallback) {
-  const YAML::Node n = impl_->Find(key);
-  if (!n) return fallback;
-  if (!n.IsScalar()) {
-    impl_->problems.Add(key + ": expected a string");
-    return fallback;
-  }
-  return n.Scalar();
-}
-
-std::vector<double> WorldConfigReader::Numbers(const std::string& key, size_t n,
-                                               std::vector<double> fallback, bool scalar_ok) {
-  const YAML::Node node = impl_->Find(key);
-  return node ? impl_->ToNumbers(node, key, n, scalar_ok) : fallback;
-}
-
-Eigen::Isometry3d WorldConfigReader::Pose(const std::string& key,
-                                          const Eigen::Isometry3d& fallback) {
-  const YAML::Node n = impl_->Find(key);
-  return n ? impl_->ToPose(n, key) : fallback;
-}
-
-std::string WorldConfigReader::Path(const std::string& key) {
-  return impl_->Resolve(Text(key, ""));
-}
-
 std::vector<WorldCameraConfig> WorldConfigReader::Cameras(
     const std::vector<WorldCameraConfig>& fallback) {
-  const YAML::Node list = impl_->Find("cameras");
-  if (!list) return fallback;
+  if (!Has("cameras")) return fallback;
   std::vector<WorldCameraConfig> cameras;
-  if (!list.IsSequence()) {
-    impl_->problems.Add("cameras: expected a list");
-    return cameras;
-  }
-  for (size_t i = 0; i < list.size(); ++i) {
+  const size_t n = ListSize("cameras");
+  for (size_t i = 0; i < n; ++i) {
     const std::string key = "cameras[" + std::to_string(i) + "]";
-    const YAML::Node n = list[i];
-    if (!n.IsMap()) {
-      impl_->problems.Add(key + ": expected a mapping");
-      continue;
-    }
+    CheckKeys(key, {"name", "model", "fps", "pose", "render"});
     WorldCameraConfig c;
-    if (n["name"]) c.name = n["name"].Scalar();
-    if (n["model"]) {
-      c.model = n["model"].Scalar();
-      if (c.model.rfind("builtin:", 0) != 0) c.model = impl_->Resolve(c.model);
-    }
-    if (n["fps"]) c.fps = impl_->ToNumber(n["fps"], key + ".fps");
-    if (n["pose"]) c.X_WC = impl_->ToPose(n["pose"], key + ".pose");
-    if (const YAML::Node r = n["render"]) {
-      const auto number = [&](const char* k, double* v) {
-        if (r[k]) *v = impl_->ToNumber(r[k], key + ".render." + k);
-      };
-      double supersampling = c.render.supersampling;
-      double seed = static_cast<double>(c.render.seed);
-      number("supersampling", &supersampling);
-      number("blur_sigma_px", &c.render.blur_sigma_px);
-      number("vignetting", &c.render.vignetting);
-      number("exposure", &c.render.exposure);
-      number("noise_sigma", &c.render.noise_sigma);
-      number("seed", &seed);
+    c.name = Text(key + ".name", c.name);
+    c.model = Text(key + ".model", c.model);
+    if (!c.model.empty() && c.model.rfind("builtin:", 0) != 0) c.model = Resolve(c.model);
+    c.fps = Number(key + ".fps", c.fps);
+    c.X_WC = Pose(key + ".pose", c.X_WC);
+    const std::string r = key + ".render.";
+    CheckKeys(key + ".render",
+              {"supersampling", "blur_sigma_px", "vignetting", "exposure", "noise_sigma", "seed"});
+    // Counts arrive as numbers; a bad one is already a problem (NaN), not cast.
+    const double supersampling = Number(r + "supersampling", c.render.supersampling);
+    if (std::isfinite(supersampling) && std::abs(supersampling) < 1e6) {
       c.render.supersampling = static_cast<int>(supersampling);
-      c.render.seed = static_cast<uint64_t>(seed);
     }
-    for (const auto& kv : n) {
-      const std::string k = kv.first.Scalar();
-      if (k != "name" && k != "model" && k != "fps" && k != "pose" && k != "render") {
-        impl_->problems.Add(key + "." + k + ": unknown key");
-      }
-    }
+    c.render.blur_sigma_px = Number(r + "blur_sigma_px", c.render.blur_sigma_px);
+    c.render.vignetting = Number(r + "vignetting", c.render.vignetting);
+    c.render.exposure = Number(r + "exposure", c.render.exposure);
+    c.render.noise_sigma = Number(r + "noise_sigma", c.render.noise_sigma);
+    const double seed = Number(r + "seed", static_cast<double>(c.render.seed));
+    if (seed >= 0 && seed < 1.8e19) c.render.seed = static_cast<uint64_t>(seed);
     cameras.push_back(c);
   }
   return cameras;
 }
-
-void WorldConfigReader::CheckKeys(const std::string& key, const std::vector<std::string>& known) {
-  const YAML::Node n = impl_->Find(key);
-  if (!n) return;
-  if (!n.IsMap()) {
-    impl_->problems.Add(key + ": expected a mapping");
-    return;
-  }
-  for (const auto& kv : n) {
-    const std::string k = kv.first.Scalar();
-    if (std::find(known.begin(), known.end(), k) == known.end()) {
-      impl_->problems.Add((key.empty() ? "" : key + ".") + k + ": unknown key");
-    }
-  }
-}
-
-void WorldConfigReader::Problem(const std::string& text) { impl_->problems.Add(text); }
-
-void WorldConfigReader::ThrowIfProblems() const {
-  const std::string message = impl_->problems.Message();
-  if (!message.empty()) throw std::invalid_argument(impl_->path + ": " + message);
-}
-
-const std::string& WorldConfigReader::path() const { return impl_->path; }
 
 }  // namespace internal
 

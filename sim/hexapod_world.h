@@ -56,6 +56,7 @@
 
 #include "common/clock.h"
 #include "common/config_error.h"
+#include "common/yaml_reader.h"
 #include "hal/can/can_bus.h"
 #include "hal/mock/cia402_device.h"
 #include "robots/hexapod/hexapod_model.h"
@@ -106,38 +107,14 @@ namespace internal {
 // hexapod_world.cc. Keys are dotted paths ("drives.counts_per_metre"); a missing key gives the
 // fallback; a bad value is recorded as a problem naming the key and the value, and
 // ThrowIfProblems() throws them all at once: std::invalid_argument "PATH: p1; p2".
-class WorldConfigReader {
+class WorldConfigReader : public common::YamlReader {
  public:
   // Reads `path` and checks that its `world:` key is `kind` (when present). Throws
   // std::invalid_argument when the file cannot be read, is not YAML or not a mapping.
   WorldConfigReader(const std::string& path, const std::string& kind);
-  ~WorldConfigReader();
-  WorldConfigReader(const WorldConfigReader&) = delete;
-  WorldConfigReader& operator=(const WorldConfigReader&) = delete;
 
-  bool Has(const std::string& key) const;
-  double Number(const std::string& key, double fallback);
-  long long Integer(const std::string& key, long long fallback);
-  std::string Text(const std::string& key, const std::string& fallback);
-  // Exactly n numbers (a scalar is repeated n times when scalar_ok).
-  std::vector<double> Numbers(const std::string& key, size_t n, std::vector<double> fallback,
-                              bool scalar_ok = false);
-  // {position: [x, y, z] (m), rpy_deg: [roll, pitch, yaw]}, R = Rz(yaw) Ry(pitch) Rx(roll), as
-  // in robot description files.
-  Eigen::Isometry3d Pose(const std::string& key, const Eigen::Isometry3d& fallback);
-  // A file name relative to the config's folder (absolute names are kept); empty when missing.
-  std::string Path(const std::string& key);
   // The `cameras:` list; `fallback` when the key is missing.
   std::vector<WorldCameraConfig> Cameras(const std::vector<WorldCameraConfig>& fallback);
-  // Records every key of the mapping at `key` ("" = the top level) that is not in `known`.
-  void CheckKeys(const std::string& key, const std::vector<std::string>& known);
-  void Problem(const std::string& text);
-  void ThrowIfProblems() const;
-  const std::string& path() const;
-
- private:
-  struct Impl;
-  std::unique_ptr<Impl> impl_;
 };
 
 void ValidateCameras(const std::vector<WorldCameraConfig>& cameras, common::Problems* problems);

@@ -226,10 +226,11 @@ void PrintDiamondServo(const DiamondServoRun& run, const DiamondServoOptions& o)
   const control::DiamondLoopReport& r = run.report;
   std::printf(
       "  %s: %s after %.2f s, %llu cycles (%llu late drive answers, %llu velocity-limited, %llu "
-      "hold), RCM closure max %.1e\n",
+      "lead-limited, %llu hold), RCM closure max %.1e\n",
       pd ? "line" : "servo", control::ToString(r.outcome), r.duration_s,
       static_cast<unsigned long long>(r.cycles), static_cast<unsigned long long>(r.cycle_timeouts),
       static_cast<unsigned long long>(r.velocity_scaled_cycles),
+      static_cast<unsigned long long>(r.lead_limited_cycles),
       static_cast<unsigned long long>(r.hold_cycles), r.rcm_closure_max);
   if (!r.message.empty()) std::printf("  %s\n", r.message.c_str());
   if (!run.camera_error.empty()) std::printf("  %s\n", run.camera_error.c_str());

@@ -45,6 +45,7 @@ std::string DiamondLoopOptions::Validate() const {
   if (!(max_joint_acceleration > 0)) {
     bad("max_joint_acceleration", max_joint_acceleration, "must be > 0");
   }
+  if (!(max_command_lead > 0)) bad("max_command_lead", max_command_lead, "must be > 0");
   if (!(stop_deceleration > 0)) bad("stop_deceleration", stop_deceleration, "must be > 0");
   if (!(theta_margin >= 0)) bad("theta_margin", theta_margin, "must be >= 0");
   if (!(separation_margin >= 0)) bad("separation_margin", separation_margin, "must be >= 0");
@@ -344,7 +345,13 @@ DiamondLoopReport DiamondControlLoop::Run(
       q_dot = q_dot_previous + change * (options_.max_joint_acceleration * dt / largest_change);
       ++report.acceleration_limited_cycles;
     }
-    const Eigen::Vector2d q_next = q_command + q_dot * dt;
+    Eigen::Vector2d q_next = q_command + q_dot * dt;
+    const Eigen::Vector2d lead = q_next - sample.q;
+    if (lead.cwiseAbs().maxCoeff() > options_.max_command_lead) {
+      const double L = options_.max_command_lead;
+      q_next = sample.q + lead.cwiseMax(-L).cwiseMin(L);
+      ++report.lead_limited_cycles;
+    }
     const Eigen::Vector2d q_stop =
         q_next + q_dot * dt +
         q_dot.cwiseProduct(q_dot.cwiseAbs()) / (2.0 * options_.stop_deceleration);

@@ -28,6 +28,12 @@
 //    residual is reported (rcm_closure_max);
 //  - rates: joint velocities are scaled uniformly to max_joint_velocity and their change per
 //    cycle to max_joint_acceleration (the direction of motion is kept).
+//  - following: the set-points never lead the readings by more than max_command_lead. The
+//    set-points integrate the law's rates; when the drives cannot follow (a slow line, a loaded
+//    host, a drive at its own limits) a law acting on the readings would keep integrating into
+//    set-points running away from the joints — windup, which shows as a growing oscillation of
+//    the joints at the velocity limit. Held at the readings plus the lead, the loop stays a
+//    rate command on where the joints are.
 //  The law's kDone ends the run with kCompleted and the drives holding position, enabled.
 //
 // Timing statistics (PeriodStatistics, control/common/fixed_rate.h; the deadline grid is its
@@ -62,6 +68,7 @@ struct DiamondLoopOptions {
   double max_joint_velocity = 1.0;         // rad/s, > 0
   double max_joint_acceleration = 20.0;    // rad/s², > 0
   double stop_deceleration = 10.0;         // rad/s² assumed for stopping distances, > 0
+  double max_command_lead = 0.02;          // rad, set-points ahead of the readings, > 0
   double theta_margin = 0.01;              // rad kept from θ limits, >= 0
   double separation_margin = 0.01;         // rad kept from the separation limits, >= 0
   int max_consecutive_cycle_timeouts = 3;  // >= 0
@@ -101,6 +108,7 @@ struct DiamondLoopReport {
   uint64_t cycle_timeouts = 0;
   uint64_t velocity_scaled_cycles = 0;
   uint64_t acceleration_limited_cycles = 0;
+  uint64_t lead_limited_cycles = 0;  // set-points held at the readings + max_command_lead
   uint64_t hold_cycles = 0;
   double rcm_closure_max = 0.0;  // largest |w_i · u − cos β| of the commanded joints
   PeriodStatistics timing;

@@ -8,6 +8,7 @@
 #include <thread>
 
 #include "common/clock.h"
+#include "common/yaml_reader.h"
 #include "control/diamond/diamond_drives.h"
 #include "control/diamond/diamond_laws.h"
 #include "hal/camera/camera_factory.h"
@@ -146,7 +147,7 @@ DiamondRig::DiamondRig(const DiamondRigOptions& options) : config_path_(options.
     camera_model_spec_ = camera.model;
     X_OC_ = camera.pose;
     camera_fps_ = camera.fps;
-    sim::internal::WorldConfigReader& r = file.reader();
+    common::YamlReader& r = file.reader();
     camera_distance_source_ = r.Text("camera.distance_source", "");
     if (camera_distance_source_.empty()) {
       file.Problem(

@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "common/clock.h"
+#include "common/yaml_reader.h"
 #include "hal/camera/camera_factory.h"
 #include "hal/can/can_bus_factory.h"
 #include "hal/canopen/canopen_master.h"
@@ -118,7 +119,7 @@ HexapodRig::HexapodRig(const HexapodRigOptions& options) : config_path_(options.
     camera_fps_ = camera.fps;
     // A real camera's blur is not known unless measured: the parabola locator (insensitive to
     // blur) by default, the step-ramp model when the blur is given.
-    sim::internal::WorldConfigReader& r = file.reader();
+    common::YamlReader& r = file.reader();
     edge_options_.edge_blur_px = r.Number("camera.edge_blur_px", 0.0);
     if (!(edge_options_.edge_blur_px >= 0 && edge_options_.edge_blur_px <= 3)) {
       file.Problem("camera.edge_blur_px: must be in [0, 3] px");

@@ -105,6 +105,41 @@ TEST(DiamondControlLoopTest, FollowsTheSeedsVerticalLineWithTheTrueModelOnTheRcm
   EXPECT_THROW(WriteDiamondLogCsv("/nonexistent/dir/x.csv", report.samples), std::runtime_error);
 }
 
+// Drives that cannot follow (their speed limit 0.3 rad/s, the line asks for more): the set-points
+// integrate the law's rates but never lead the readings by more than max_command_lead, so the
+// law does not wind up into set-points running away from the joints (which shows as a growing
+// oscillation at the velocity limit); the joints reach the line's end and settle there.
+TEST(DiamondControlLoopTest, SetPointsNeverRunAwayFromDrivesThatCannotFollow) {
+  sim::DiamondWorldConfig config;
+  config.max_velocity = 0.3;
+  config.following_error_window = 1.0;  // the drives' own supervision stays out of the way
+  sim::DiamondWorld world{config};
+  auto bus = Host(&world);
+  DiamondLine line = DiamondLine::SeedVertical();
+  line.from = world.plant().task;
+  line.duration_s = 0.4;
+  DiamondPdOptions pd;
+  pd.settle_timeout_s = 8.0;
+  DiamondTaskPdLaw law(world.true_model(), line, pd);
+  DiamondLoopOptions o;
+  o.max_command_lead = 0.02;
+  DiamondControlLoop loop(bus.get(), &world.clock(), world.true_model(), o);
+  double worst_lead = 0.0;
+  int reversals = 0;
+  double previous_rate = 0.0;
+  const DiamondLoopReport report = loop.Run(&law, [&](const DiamondLoopSample& s) {
+    worst_lead = std::max(worst_lead, (s.q_command - s.q).cwiseAbs().maxCoeff());
+    const double rate = s.q_dot.cwiseAbs().maxCoeff() > 0.05 ? s.q_dot[1] : 0.0;
+    if (rate * previous_rate < 0) ++reversals;
+    if (rate != 0) previous_rate = rate;
+  });
+  ASSERT_EQ(report.outcome, DiamondLoopOutcome::kCompleted) << report.message;
+  EXPECT_GT(report.lead_limited_cycles, 0u);
+  EXPECT_LE(worst_lead, o.max_command_lead + 1e-12);
+  EXPECT_LE(reversals, 2) << "the joints swung back and forth";
+  EXPECT_LT((world.plant().task - line.to).cwiseAbs().maxCoeff(), 1e-3);
+}
+
 TEST(DiamondControlLoopTest, ALineLeavingTheWorkspaceStopsAtTheLimitWithoutCommandingBeyond) {
   sim::DiamondWorld world{sim::DiamondWorldConfig{}};
   auto bus = Host(&world);
