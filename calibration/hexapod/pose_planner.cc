@@ -7,6 +7,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/config_error.h"
 #include "common/units.h"
 #include "vision/camera/camera_model.h"
 #include "vision/render/scenes/hexapod_scene.h"
@@ -65,11 +66,9 @@ double MaxDot(const Directions& a, const Directions& b) {
 }  // namespace
 
 std::string PosePlannerOptions::Validate() const {
-  std::ostringstream bad;
-  const char* sep = "";
-  auto add = [&](const char* name, double value, const char* rule) {
-    bad << sep << name << " = " << value << " (" << rule << ")";
-    sep = "; ";
+  common::Problems problems;
+  const auto add = [&problems](const char* name, double value, const char* rule) {
+    problems.Add(name, value, rule);
   };
   if (poses < 2) add("poses", poses, "must be >= 2");
   if (candidates < poses) add("candidates", candidates, "must be >= poses");
@@ -90,7 +89,7 @@ std::string PosePlannerOptions::Validate() const {
     add("max_jacobian_condition", max_jacobian_condition, "must be >= 1");
   }
   if (X_CB && !X_CB->matrix().allFinite()) add("X_CB", kNaN, "must be finite when set");
-  return bad.str();
+  return problems.Message();
 }
 
 double SegmentSegmentDistance(const Eigen::Vector3d& p0, const Eigen::Vector3d& p1,

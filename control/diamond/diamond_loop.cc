@@ -11,6 +11,7 @@
 #include <stdexcept>
 
 #include "common/clock.h"
+#include "common/config_error.h"
 #include "hal/common/error.h"
 #include "hal/drive/cia402_can_drive.h"
 
@@ -34,9 +35,9 @@ constexpr double kClosureTolerance = 1e-9;
 }  // namespace
 
 std::string DiamondLoopOptions::Validate() const {
-  std::ostringstream out;
-  const auto bad = [&](const char* field, double value, const char* rule) {
-    out << (out.tellp() > 0 ? "; " : "") << field << " = " << value << " (" << rule << ")";
+  common::Problems problems;
+  const auto bad = [&problems](const char* field, double value, const char* rule) {
+    problems.Add(field, value, rule);
   };
   if (!(cycle_period_s > 0 && cycle_period_s <= 0.1)) {
     bad("cycle_period_s", cycle_period_s, "must be in (0, 0.1] s");
@@ -53,7 +54,7 @@ std::string DiamondLoopOptions::Validate() const {
     bad("max_consecutive_cycle_timeouts", max_consecutive_cycle_timeouts, "must be >= 0");
   }
   if (!(timeout_s > 0)) bad("timeout_s", timeout_s, "must be > 0");
-  return out.str();
+  return problems.Message();
 }
 
 const char* ToString(DiamondLoopOutcome outcome) {

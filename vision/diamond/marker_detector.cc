@@ -10,6 +10,8 @@
 #include <stdexcept>
 #include <vector>
 
+#include "common/config_error.h"
+
 namespace kinevis::vision {
 namespace {
 
@@ -167,9 +169,9 @@ bool SaddleFit(const cv::Mat& smoothed, const Eigen::Vector2d& start, Eigen::Vec
 }  // namespace
 
 std::string MarkerDetectorOptions::Validate() const {
-  std::ostringstream out;
-  const auto bad = [&](const char* field, double value, const char* rule) {
-    out << (out.tellp() > 0 ? "; " : "") << field << " = " << value << " (" << rule << ")";
+  common::Problems problems;
+  const auto bad = [&problems](const char* field, double value, const char* rule) {
+    problems.Add(field, value, rule);
   };
   if (!(std::isfinite(ring_radius_px) && ring_radius_px >= 3 && ring_radius_px <= 50)) {
     bad("ring_radius_px", ring_radius_px, "must be in [3, 50]");
@@ -198,7 +200,7 @@ std::string MarkerDetectorOptions::Validate() const {
   if (!(min_confidence >= 0 && min_confidence <= 1)) {
     bad("min_confidence", min_confidence, "must be in [0, 1]");
   }
-  return out.str();
+  return problems.Message();
 }
 
 const char* ToString(MarkerStatus status) {

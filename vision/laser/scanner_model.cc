@@ -4,6 +4,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/config_error.h"
+
 namespace kinevis::vision::laser {
 namespace {
 
@@ -22,17 +24,18 @@ Eigen::Vector4d ScannerGeometry::FixedPlane() const {
 }
 
 std::string ScannerGeometry::Validate() const {
-  std::ostringstream out;
-  auto add = [&out](const char* name, double value, const char* rule) {
-    out << (out.tellp() > 0 ? "; " : "") << name << " = " << value << " (" << rule << ")";
+  common::Problems problems;
+  const auto add = [&problems](const char* name, double value, const char* rule) {
+    problems.Add(name, value, rule);
   };
-  if (!std::isfinite(rotating_b_y)) add("rotating_b_y", rotating_b_y, "finite, m");
-  if (!std::isfinite(rotating_d_y)) add("rotating_d_y", rotating_d_y, "finite, m");
+  if (!std::isfinite(rotating_b_y)) add("rotating_b_y", rotating_b_y, "must be finite (m)");
+  if (!std::isfinite(rotating_d_y)) add("rotating_d_y", rotating_d_y, "must be finite (m)");
   if (!(std::isfinite(fixed_b_x_prime) && std::abs(fixed_b_x_prime) >= 1e-5)) {
-    add("fixed_b_x_prime", fixed_b_x_prime, "finite, |.| >= 1e-5 m");
+    add("fixed_b_x_prime", fixed_b_x_prime, "must be finite with |.| >= 1e-5 m");
   }
-  if (!std::isfinite(fixed_cot_theta_x)) add("fixed_cot_theta_x", fixed_cot_theta_x, "finite");
-  return out.str();
+  if (!std::isfinite(fixed_cot_theta_x))
+    add("fixed_cot_theta_x", fixed_cot_theta_x, "must be finite");
+  return problems.Message();
 }
 
 ScannerGeometry FromSceneGeometry(const render::LaserScannerGeometry& scene) {

@@ -13,6 +13,7 @@
 #include <type_traits>
 
 #include "common/check.h"
+#include "common/config_error.h"
 
 namespace kinevis::vision::render {
 namespace {
@@ -187,11 +188,9 @@ void Scene::TraceBatch(const RayBatch& rays, Hit* hits) const {
 }
 
 std::string RenderOptions::Validate() const {
-  std::ostringstream bad;
-  const char* sep = "";
-  auto add = [&](const char* field, double value, const char* why) {
-    bad << sep << field << " = " << value << " (" << why << ")";
-    sep = "; ";
+  common::Problems problems;
+  const auto add = [&problems](const char* field, double value, const char* why) {
+    problems.Add(field, value, why);
   };
   if (supersampling < 1 || supersampling > kMaxSupersampling)
     add("supersampling", supersampling, "must be in 1..16");
@@ -205,7 +204,7 @@ std::string RenderOptions::Validate() const {
     add("exposure", exposure, "must be finite and > 0");
   if (!std::isfinite(noise_sigma) || noise_sigma < 0.0)
     add("noise_sigma", noise_sigma, "must be finite and >= 0");
-  const std::string message = bad.str();
+  const std::string message = problems.Message();
   return message.empty() ? message : "invalid render options: " + message;
 }
 

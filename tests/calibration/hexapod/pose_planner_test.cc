@@ -143,7 +143,8 @@ TEST(PosePlannerTest, BadOptionsModelAndNominalPoseAreRefused) {
   o.collision_margin = NAN;
   const std::string message = o.Validate();
   for (const char* s :
-       {"poses = 1", "candidates = 0", "translation_scale = -1", "collision_margin"}) {
+       {"poses: must be >= 2, got 1", "candidates: must be >= poses, got 0",
+        "translation_scale: must be finite and > 0, got -1", "collision_margin: "}) {
     EXPECT_THAT(message, HasSubstr(s));
   }
   EXPECT_THROW(PlanCalibrationPoses(robots::HexapodModel::Default(), o), std::invalid_argument);

@@ -203,7 +203,8 @@ TEST(DiamondMarkerScene, BadParametersAreNamedInOneMessage) {
   DiamondMarkerSceneParameters parameters;
   parameters.half_side = -1.0;
   parameters.white = 1.5;
-  EXPECT_THAT(parameters.Validate(), ::testing::MatchesRegex(".*half_side = -1.*white = 1.5.*"));
+  EXPECT_THAT(parameters.Validate(),
+              ::testing::MatchesRegex(".*half_side: [^;]*, got -1.*white: [^;]*, got 1.5.*"));
   EXPECT_THROW(DiamondMarkerScene{parameters}, std::invalid_argument);
   DiamondMarkerSceneParameters behind;
   behind.p_O_T = Eigen::Vector3d(0, 0, -0.2);  // X_CO identity: T behind the camera

@@ -4,6 +4,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/config_error.h"
 #include "vision/render/primitives.h"
 
 namespace kinevis::vision::render {
@@ -14,9 +15,9 @@ bool InUnit(double x) { return std::isfinite(x) && x >= 0.0 && x <= 1.0; }
 }  // namespace
 
 std::string DiamondMarkerSceneParameters::Validate() const {
-  std::ostringstream bad;
-  auto add = [&bad](const char* name, double value, const char* rule) {
-    bad << (bad.tellp() > 0 ? "; " : "") << name << " = " << value << " (" << rule << ")";
+  common::Problems problems;
+  const auto add = [&problems](const char* name, double value, const char* rule) {
+    problems.Add(name, value, rule);
   };
   if (!X_CO.matrix().allFinite()) add("X_CO", X_CO.translation().norm(), "must be finite");
   if (!p_O_T.allFinite()) add("p_O_T", p_O_T.norm(), "must be finite");
@@ -26,7 +27,7 @@ std::string DiamondMarkerSceneParameters::Validate() const {
   if (!InUnit(white)) add("white", white, "must be in [0, 1]");
   if (!InUnit(black)) add("black", black, "must be in [0, 1]");
   if (!InUnit(background)) add("background", background, "must be in [0, 1]");
-  return bad.str();
+  return problems.Message();
 }
 
 DiamondMarkerScene::DiamondMarkerScene(const DiamondMarkerSceneParameters& parameters)

@@ -4,6 +4,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "common/config_error.h"
 #include "vision/render/primitives.h"
 
 namespace kinevis::vision::render {
@@ -15,11 +16,9 @@ bool Positive(double x) { return std::isfinite(x) && x > 0.0; }
 }  // namespace
 
 std::string TargetSpec::Validate() const {
-  std::ostringstream bad;
-  const char* sep = "";
-  auto add = [&](const char* field, double value, const char* why) {
-    bad << sep << field << " = " << value << " (" << why << ")";
-    sep = "; ";
+  common::Problems problems;
+  const auto add = [&problems](const char* field, double value, const char* why) {
+    problems.Add(field, value, why);
   };
   const bool chess = pattern == TargetPattern::kChessboard;
   const int min_count = chess ? 3 : 2;
@@ -39,7 +38,7 @@ std::string TargetSpec::Validate() const {
   if (!InUnitRange(black_radiance)) add("black_radiance", black_radiance, "must be in [0, 1]");
   if (!InUnitRange(background_radiance))
     add("background_radiance", background_radiance, "must be in [0, 1]");
-  const std::string message = bad.str();
+  const std::string message = problems.Message();
   return message.empty() ? message : "invalid target: " + message;
 }
 
