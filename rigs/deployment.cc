@@ -6,7 +6,7 @@
 #include <stdexcept>
 
 #include "common/yaml_reader.h"
-#include "sim/hexapod_world.h"
+#include "sim/world_common.h"
 
 namespace kinevis::rigs {
 namespace {

@@ -37,7 +37,7 @@
 #include "common/clock.h"
 #include "hal/mock/cia402_device.h"
 #include "robots/diamond/diamond_model.h"
-#include "sim/hexapod_world.h"  // WorldClock, WorldCameraConfig, internal::WorldConfigReader
+#include "sim/world_common.h"  // WorldClock, WorldCameraConfig, internal::WorldConfigReader
 
 namespace kinevis::hal {
 class PtyPair;

@@ -8,7 +8,7 @@
 #include "common/units.h"
 #include "hal/camera/frame_server.h"
 #include "hal/camera/sim_camera.h"
-#include "sim/hexapod_world.h"  // internal::WorldConfigReader, common::Problems
+#include "sim/world_common.h"  // internal::WorldConfigReader, common::Problems
 
 namespace kinevis::sim {
 

@@ -61,7 +61,7 @@
 #include "common/clock.h"
 #include "hal/camera/camera.h"
 #include "robots/weld5/weld5_model.h"
-#include "sim/hexapod_world.h"  // WorldClock, internal::WorldConfigReader, common::Problems
+#include "sim/world_common.h"  // WorldClock, internal::WorldConfigReader, common::Problems
 #include "vision/camera/camera_model.h"
 #include "vision/render/renderer.h"
 #include "vision/render/scenes/laser_scene.h"
