@@ -270,10 +270,8 @@ int RunCalibrateCamera(const CalibrateCameraOptions& o) {
 
 }  // namespace
 
-void AddCalibrateCommands(CLI::App& app, CommandList* commands) {
-  CLI::App* calibrate =
-      app.add_subcommand("calibrate", "Calibration routines (docs/camera-calibration.md)");
-  calibrate->require_subcommand(1);
+void AddCalibrateCommands(const Parents& parents, CommandList* commands) {
+  CLI::App* calibrate = parents.calibrate;
 
   auto o = std::make_shared<CalibrateCameraOptions>();
   CLI::App* camera = calibrate->add_subcommand(

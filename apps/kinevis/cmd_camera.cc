@@ -137,7 +137,8 @@ int RunInfo(const std::string& source, bool json) {
 
 }  // namespace
 
-void AddCameraCommands(CLI::App& app, CommandList* commands) {
+void AddCameraCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& app = *parents.app;
   CLI::App* camera = app.add_subcommand("camera", "Camera tools: grab frames, show a source");
   camera->require_subcommand(1);
 

@@ -162,7 +162,8 @@ int RunReplay(const ReplayOptions& o) {
 
 }  // namespace
 
-void AddCanCommands(CLI::App& app, CommandList* commands) {
+void AddCanCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& app = *parents.app;
   CLI::App* can = app.add_subcommand("can", "CAN bus tools (candump, cansend, canplayer alike)");
   can->require_subcommand(1);
   const std::string backends =

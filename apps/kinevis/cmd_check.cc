@@ -68,7 +68,8 @@ int RunCheckTiming(const TimingOptions& o) {
 
 }  // namespace
 
-void AddCheckCommands(CLI::App& app, CommandList* commands) {
+void AddCheckCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& app = *parents.app;
   CLI::App* check = app.add_subcommand("check", "Checks of this host before a job on hardware");
   check->require_subcommand(1);
   auto o = std::make_shared<TimingOptions>();

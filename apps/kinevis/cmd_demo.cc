@@ -572,7 +572,8 @@ int RunDemo(const std::string& out_dir, int poses) {
 
 }  // namespace
 
-void AddDemoCommand(CLI::App& app, CommandList* commands) {
+void AddDemoCommand(const Parents& parents, CommandList* commands) {
+  CLI::App& app = *parents.app;
   CLI::App* demo = app.add_subcommand("demo", "Run the main job on simulated hardware");
   struct Options {
     std::string out = "kinevis-demo";

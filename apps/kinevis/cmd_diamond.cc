@@ -410,15 +410,6 @@ void AddRecordOptions(CLI::App* cmd, DiamondRecordOptions* o) {
       ->check(CLI::Range(0.01, 2.0));
 }
 
-CLI::App* FindOrAdd(CLI::App& app, const std::string& name, const std::string& description) {
-  for (CLI::App* sub : app.get_subcommands([](CLI::App*) { return true; })) {
-    if (sub->get_name() == name) return sub;
-  }
-  CLI::App* sub = app.add_subcommand(name, description);
-  sub->require_subcommand(1);
-  return sub;
-}
-
 }  // namespace
 
 // --- demo ---------------------------------------------------------------------------------------
@@ -513,10 +504,11 @@ DiamondDemoResult RunDiamondDemo(
   return result;
 }
 
-void AddDiamondCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo,
-                        CommandList* commands) {
+void AddDiamondCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& calibrate = *parents.calibrate;
+  CLI::App& servo = *parents.servo;
   // record diamond
-  CLI::App* record = FindOrAdd(app, "record", "Record calibration datasets on the robot");
+  CLI::App* record = parents.record;
   auto ro = std::make_shared<RecordCommandOptions>();
   CLI::App* rd = record->add_subcommand(
       "diamond",
@@ -643,8 +635,7 @@ void AddDiamondCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo,
   commands->push_back({sd, [so] { return RunServo(*so); }});
 
   // plan-camera diamond
-  CLI::App* plan =
-      FindOrAdd(app, "plan-camera", "Plan a camera's placement for a robot's calibration");
+  CLI::App* plan = parents.plan_camera;
   auto po = std::make_shared<PlanCameraOptions>();
   CLI::App* pd = plan->add_subcommand(
       "diamond",

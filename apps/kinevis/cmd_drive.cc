@@ -293,7 +293,9 @@ int RunMove(const DriveCliOptions& o) {
 
 }  // namespace
 
-void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands) {
+void AddDriveCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& app = *parents.app;
+  CLI::App& sim = *parents.sim;
   AddDriveSimCommands(sim, commands);
 
   auto o = std::make_shared<DriveCliOptions>();

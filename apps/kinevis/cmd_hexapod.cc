@@ -254,18 +254,11 @@ void AddRecordOptions(CLI::App* cmd, HexapodRecordOptions* o) {
 
 }  // namespace
 
-void AddHexapodCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo,
-                        CommandList* commands) {
+void AddHexapodCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& calibrate = *parents.calibrate;
+  CLI::App& servo = *parents.servo;
   // record hexapod
-  // `record` is shared with the other robots' recorders: made by whoever comes first.
-  CLI::App* record = nullptr;
-  for (CLI::App* sub : app.get_subcommands([](CLI::App*) { return true; })) {
-    if (sub->get_name() == "record") record = sub;
-  }
-  if (record == nullptr) {
-    record = app.add_subcommand("record", "Record calibration datasets on the robot");
-    record->require_subcommand(1);
-  }
+  CLI::App* record = parents.record;
   auto ro = std::make_shared<RecordCommandOptions>();
   CLI::App* rh = record->add_subcommand(
       "hexapod",

@@ -450,7 +450,8 @@ int RunProject(const ProjectOptions& o) {
 
 }  // namespace
 
-void AddModelCommands(CLI::App& app, CommandList* commands) {
+void AddModelCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& app = *parents.app;
   auto o = std::make_shared<ModelOptions>();
   CLI::App* model = app.add_subcommand(
       "model", "Forward and inverse kinematics of the robot models, to sanity-check a description");

@@ -55,7 +55,8 @@ int RunPorts(bool json) {
 
 }  // namespace
 
-void AddPortsCommand(CLI::App& app, CommandList* commands) {
+void AddPortsCommand(const Parents& parents, CommandList* commands) {
+  CLI::App& app = *parents.app;
   auto json = std::make_shared<bool>(false);
   CLI::App* ports = app.add_subcommand(
       "ports", "List serial ports with USB VID:PID, manufacturer and serial number");

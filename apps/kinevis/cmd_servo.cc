@@ -339,11 +339,10 @@ const ServoOptions& NeedBackend(const ServoOptions& o) {
 
 }  // namespace
 
-void AddServoCommands(CLI::App& app, CLI::App& sim, CommandList* commands) {
+void AddServoCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& sim = *parents.sim;
   auto o = std::make_shared<ServoOptions>();
-  CLI::App* servo = app.add_subcommand(
-      "servo", "Dynamixel servos on a serial bus: ping, read, move, torque, reboot");
-  servo->require_subcommand(1);
+  CLI::App* servo = parents.servo;
   // Not ->required(): `kinevis servo hexapod ...` has no backend; the Dynamixel commands check it.
   servo->add_option("backend", o->backend, "Serial port: tty:DEVICE[@BAUD] (docs/backends.md)");
   AddCommonOptions(servo, &o->protocol, &o->ids, &o->model, &o->table_path);

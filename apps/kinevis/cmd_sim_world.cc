@@ -121,7 +121,8 @@ int RunDiamond(const WorldOptions& o) {
 
 }  // namespace
 
-void AddSimWorldCommands(CLI::App& sim, CommandList* commands) {
+void AddSimWorldCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& sim = *parents.sim;
   CLI::App* world = sim.add_subcommand(
       "world", "A simulated world (robot, drives, cameras) reachable as real hardware");
   world->require_subcommand(1);

@@ -261,14 +261,9 @@ int RunCalibrateScannerMount(const MountCalibrateOptions& o) {
 
 }  // namespace
 
-void AddWeldMountCommands(CLI::App& app, CLI::App& calibrate, CommandList* commands) {
-  CLI::App* record = nullptr;
-  for (CLI::App* sub : app.get_subcommands({})) {
-    if (sub->get_name() == "record") record = sub;
-  }
-  if (record == nullptr) {
-    record = app.add_subcommand("record", "Record calibration datasets on the robot");
-  }
+void AddWeldMountCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& calibrate = *parents.calibrate;
+  CLI::App* record = parents.record;
   auto ro = std::make_shared<MountRecordOptions>();
   CLI::App* rs = record->add_subcommand(
       "scanner-mount",

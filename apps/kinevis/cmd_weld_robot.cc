@@ -343,7 +343,9 @@ int RunSim(const SimOptions& o) {
 
 }  // namespace
 
-void AddWeldRobotCommands(CLI::App& app, CLI::App& sim, CommandList* commands) {
+void AddWeldRobotCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& app = *parents.app;
+  CLI::App& sim = *parents.sim;
   auto o = std::make_shared<WeldRobotOptions>();
   CLI::App* robot = app.add_subcommand(
       "weld-robot", "Bring-up of the Modbus weld robot: state, moves, trajectory streams, arc");

@@ -279,14 +279,9 @@ int RunWeldRun(const WeldRunOptions& o) {
 
 }  // namespace
 
-void AddWeldScanCommands(CLI::App& app, CommandList* commands) {
-  CLI::App* record = nullptr;
-  for (CLI::App* sub : app.get_subcommands({})) {
-    if (sub->get_name() == "record") record = sub;
-  }
-  if (record == nullptr) {
-    record = app.add_subcommand("record", "Record calibration datasets on the robot");
-  }
+void AddWeldScanCommands(const Parents& parents, CommandList* commands) {
+  CLI::App& app = *parents.app;
+  CLI::App* record = parents.record;
   auto add_scan_options = [](CLI::App* c, ScanOptions* o) {
     c->add_option("--config", o->config,
                   "Weld-cell world config or deployment file (default: the built-in simulated "

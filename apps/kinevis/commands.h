@@ -16,38 +16,49 @@ struct Command {
 };
 using CommandList = std::vector<Command>;
 
-void AddDemoCommand(CLI::App& app, CommandList* commands);
-void AddPortsCommand(CLI::App& app, CommandList* commands);
+// The parent subcommands that several files add under, made once by main before any file adds
+// its commands (so the order of the table in main.cc does not matter): `sim` (simulators as their
+// own process), `calibrate`, `servo` (Dynamixel servos, and the robots' visual servos), `record`
+// (calibration datasets) and `plan-camera`.
+struct Parents {
+  CLI::App* app = nullptr;
+  CLI::App* sim = nullptr;
+  CLI::App* calibrate = nullptr;
+  CLI::App* servo = nullptr;
+  CLI::App* record = nullptr;
+  CLI::App* plan_camera = nullptr;
+};
+
+// One per cmd_*.cc: adds that file's subcommands (main.cc's kCommandFiles lists them all).
+using AddCommands = void (*)(const Parents& parents, CommandList* commands);
+void AddDemoCommand(const Parents& parents, CommandList* commands);
+void AddPortsCommand(const Parents& parents, CommandList* commands);
 // `kinevis check timing`: how steadily this host paces a fixed-rate loop.
-void AddCheckCommands(CLI::App& app, CommandList* commands);
-void AddCanCommands(CLI::App& app, CommandList* commands);
-// `sim` is the shared `kinevis sim` subcommand; each adds its simulator under it.
-void AddServoCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
-void AddWeldRobotCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
-void AddCameraCommands(CLI::App& app, CommandList* commands);
-// `kinevis calibrate ...`: one subcommand per calibration routine (camera, later robots).
-void AddCalibrateCommands(CLI::App& app, CommandList* commands);
+void AddCheckCommands(const Parents& parents, CommandList* commands);
+void AddCanCommands(const Parents& parents, CommandList* commands);
+// Dynamixel servos (`servo BACKEND ...`) and `sim dynamixel`.
+void AddServoCommands(const Parents& parents, CommandList* commands);
+void AddWeldRobotCommands(const Parents& parents, CommandList* commands);
+void AddCameraCommands(const Parents& parents, CommandList* commands);
+// `kinevis calibrate camera`.
+void AddCalibrateCommands(const Parents& parents, CommandList* commands);
 // `kinevis sim world hexapod|diamond ...`: a simulated world as its own process.
-void AddSimWorldCommands(CLI::App& sim, CommandList* commands);
+void AddSimWorldCommands(const Parents& parents, CommandList* commands);
 // Called by AddSimWorldCommands: `kinevis sim world weld-cell` and `kinevis sim world soccer`.
 void AddCellWorldCommands(CLI::App& world, CommandList* commands);
 // `kinevis model hexapod|diamond|weld5 fk|ik ...` and `kinevis project MODEL ...`.
-void AddModelCommands(CLI::App& app, CommandList* commands);
-// `kinevis record hexapod`, `kinevis calibrate hexapod`, `kinevis servo hexapod`: `calibrate` and
-// `servo` are the existing subcommands (AddCalibrateCommands, AddServoCommands run first).
-void AddHexapodCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo, CommandList* commands);
-// `kinevis record scanner`, `kinevis calibrate scanner` (issue 7): after AddHexapodCommands (which
-// creates `record`).
-void AddWeldCommands(CLI::App& app, CLI::App& calibrate, CommandList* commands);
-// `kinevis record scanner-mount`, `kinevis calibrate scanner-mount` (issue 7): after
-// AddWeldCommands (`record` is found or made).
-void AddWeldMountCommands(CLI::App& app, CLI::App& calibrate, CommandList* commands);
-// `kinevis scan`, `record scan`, `weld-path`, `weld-run` (issue 7): after AddWeldCommands.
-void AddWeldScanCommands(CLI::App& app, CommandList* commands);
-// `kinevis record diamond`, `calibrate diamond`, `servo diamond`, `plan-camera diamond` (issue 8):
-// after AddWeldCommands (`record` is found or made; `plan-camera` too).
-void AddDiamondCommands(CLI::App& app, CLI::App& calibrate, CLI::App& servo, CommandList* commands);
-void AddDriveCommands(CLI::App& app, CLI::App& sim, CommandList* commands);
+void AddModelCommands(const Parents& parents, CommandList* commands);
+// `kinevis record|calibrate|servo hexapod`.
+void AddHexapodCommands(const Parents& parents, CommandList* commands);
+// `kinevis record scanner`, `kinevis calibrate scanner` (issue 7).
+void AddWeldCommands(const Parents& parents, CommandList* commands);
+// `kinevis record scanner-mount`, `kinevis calibrate scanner-mount` (issue 7).
+void AddWeldMountCommands(const Parents& parents, CommandList* commands);
+// `kinevis scan`, `record scan`, `weld-path`, `weld-run` (issue 7).
+void AddWeldScanCommands(const Parents& parents, CommandList* commands);
+// `kinevis record|calibrate|servo|plan-camera diamond` (issue 8).
+void AddDiamondCommands(const Parents& parents, CommandList* commands);
+void AddDriveCommands(const Parents& parents, CommandList* commands);
 // Called by AddDriveCommands: `kinevis sim drive` and `kinevis sim rs485-drive`.
 void AddDriveSimCommands(CLI::App& sim, CommandList* commands);
 

@@ -28,30 +28,37 @@ int main(int argc, char** argv) {
       "Exit codes: 0 success, 1 the job failed, 2 usage or configuration error, "
       "3 hardware or communication failure (docs/cli.md).");
 
-  CommandList commands;
-  AddDemoCommand(app, &commands);
-  AddPortsCommand(app, &commands);
-  AddCheckCommands(app, &commands);
-  AddCanCommands(app, &commands);
-  CLI::App* sim = app.add_subcommand(
+  // The shared parents first, then every file's commands: the table's order is only the order
+  // of `--help`'s listing.
+  Parents parents;
+  parents.app = &app;
+  parents.sim = app.add_subcommand(
       "sim",
       "Run a device simulator as its own process; it prints the backend string that "
       "reaches it as its first line and runs until SIGINT/SIGTERM");
-  sim->require_subcommand(1);
-  AddDriveCommands(app, *sim, &commands);
-  AddServoCommands(app, *sim, &commands);
-  AddWeldRobotCommands(app, *sim, &commands);
-  AddSimWorldCommands(*sim, &commands);
-  AddCameraCommands(app, &commands);
-  AddCalibrateCommands(app, &commands);
-  AddModelCommands(app, &commands);
-  AddHexapodCommands(app, *app.get_subcommand("calibrate"), *app.get_subcommand("servo"),
-                     &commands);
-  AddWeldCommands(app, *app.get_subcommand("calibrate"), &commands);
-  AddWeldMountCommands(app, *app.get_subcommand("calibrate"), &commands);
-  AddWeldScanCommands(app, &commands);
-  AddDiamondCommands(app, *app.get_subcommand("calibrate"), *app.get_subcommand("servo"),
-                     &commands);
+  parents.calibrate =
+      app.add_subcommand("calibrate",
+                         "Calibration routines: camera, hexapod, scanner, scanner-mount, diamond "
+                         "(docs/camera-calibration.md and the robots' pages)");
+  parents.servo = app.add_subcommand(
+      "servo",
+      "Dynamixel servos on a serial bus (ping, read, move, torque, reboot), and the robots' "
+      "visual servoing (hexapod, diamond)");
+  parents.record = app.add_subcommand("record", "Record calibration datasets on the robot");
+  parents.plan_camera =
+      app.add_subcommand("plan-camera", "Plan a camera's placement for a robot's calibration");
+  for (CLI::App* parent :
+       {parents.sim, parents.calibrate, parents.servo, parents.record, parents.plan_camera}) {
+    parent->require_subcommand(1);
+  }
+  constexpr AddCommands kCommandFiles[] = {
+      AddDemoCommand,    AddPortsCommand,      AddCheckCommands,     AddCanCommands,
+      AddDriveCommands,  AddServoCommands,     AddWeldRobotCommands, AddSimWorldCommands,
+      AddCameraCommands, AddCalibrateCommands, AddModelCommands,     AddHexapodCommands,
+      AddWeldCommands,   AddWeldMountCommands, AddWeldScanCommands,  AddDiamondCommands,
+  };
+  CommandList commands;
+  for (const AddCommands add : kCommandFiles) add(parents, &commands);
 
   try {
     app.parse(argc, argv);
