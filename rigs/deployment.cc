@@ -1,24 +1,14 @@
 #include "rigs/deployment.h"
 
 #include <cmath>
-#include <cstdio>
 #include <set>
 #include <stdexcept>
 
+#include "common/config_error.h"
 #include "common/yaml_reader.h"
 #include "sim/world_common.h"
 
 namespace kinevis::rigs {
-namespace {
-
-std::string Number(double v) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%g", v);
-  return b;
-}
-
-}  // namespace
-
 bool IsWorldConfig(const std::string& path, const std::string& kind) {
   if (path.empty()) return true;
   return sim::internal::WorldConfigReader(path, kind).Has("world");
@@ -59,7 +49,7 @@ DeploymentDrives DeploymentFile::Drives(const DrivesSection& spec) {
     const std::string where = "drives." + spec.ids_key + "[" + std::to_string(i) + "]";
     if (!(v >= 1 && v <= spec.max_id) || v != std::floor(v)) {
       r.Problem(where + ": must be an integer in [1, " + std::to_string(spec.max_id) + "], got " +
-                Number(v));
+                common::Num(v));
       d.ids.push_back(0);
       continue;
     }
@@ -72,18 +62,18 @@ DeploymentDrives DeploymentFile::Drives(const DrivesSection& spec) {
   d.counts_per_unit = r.Number("drives." + spec.counts_key, spec.default_counts);
   if (!(d.counts_per_unit > 0) || !std::isfinite(d.counts_per_unit)) {
     r.Problem("drives." + spec.counts_key + ": must be a finite number > 0, got " +
-              Number(d.counts_per_unit));
+              common::Num(d.counts_per_unit));
   }
   d.cycle_ms = r.Number("drives.cycle_ms", spec.default_cycle_ms);
   if (!(d.cycle_ms >= spec.min_cycle_ms && d.cycle_ms <= spec.max_cycle_ms)) {
-    r.Problem("drives.cycle_ms: must be in [" + Number(spec.min_cycle_ms) + ", " +
-              Number(spec.max_cycle_ms) + "] ms, got " + Number(d.cycle_ms));
+    r.Problem("drives.cycle_ms: must be in [" + common::Num(spec.min_cycle_ms) + ", " +
+              common::Num(spec.max_cycle_ms) + "] ms, got " + common::Num(d.cycle_ms));
   }
   std::vector<std::string> keys = {"backend", spec.ids_key, spec.counts_key, "cycle_ms"};
   if (spec.heartbeat) {
     d.heartbeat_ms = r.Number("drives.heartbeat_ms", d.heartbeat_ms);
     if (!(d.heartbeat_ms >= 1 && d.heartbeat_ms <= 1000)) {
-      r.Problem("drives.heartbeat_ms: must be in [1, 1000] ms, got " + Number(d.heartbeat_ms));
+      r.Problem("drives.heartbeat_ms: must be in [1, 1000] ms, got " + common::Num(d.heartbeat_ms));
     }
     keys.push_back("heartbeat_ms");
   }
@@ -114,7 +104,7 @@ DeploymentCamera DeploymentFile::Camera(const CameraSection& spec) {
   c.pose = r.Pose(s + spec.pose_key, c.pose);
   c.fps = r.Number(s + "fps", spec.default_fps);
   if (!(c.fps > 0) || !std::isfinite(c.fps)) {
-    r.Problem(s + "fps: must be a finite number > 0, got " + Number(c.fps));
+    r.Problem(s + "fps: must be a finite number > 0, got " + common::Num(c.fps));
   }
   keys.insert(keys.end(), spec.extra_keys.begin(), spec.extra_keys.end());
   r.CheckKeys(spec.section, keys);

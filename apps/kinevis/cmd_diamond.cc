@@ -20,6 +20,7 @@
 #include "apps/kinevis/commands.h"
 #include "apps/kinevis/diamond_demo.h"
 #include "calibration/diamond/camera_placement.h"
+#include "common/stopwatch.h"
 #include "common/units.h"
 #include "rigs/diamond/diamond_rig.h"
 #include "sim/diamond_world.h"
@@ -45,10 +46,6 @@ using rigs::ServoDiamond;
 namespace {
 
 namespace fs = std::filesystem;
-
-double WallSince(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 
 }  // namespace
 
@@ -302,7 +299,6 @@ int RunServo(ServoCommandOptions o) {
   DiamondRig rig(o.rig);
   const DiamondServoRun run = ServoDiamond(&rig, o.servo);
   PrintDiamondServo(run, o.servo);
-  rig.Disable();
   return DiamondServoExitCode(run);
 }
 
@@ -418,7 +414,7 @@ DiamondDemoResult RunDiamondDemo(
     const std::string& out_dir, const std::function<void(bool ok, const std::string& what)>& expect,
     int samples) {
   DiamondDemoResult result;
-  const auto t0 = std::chrono::steady_clock::now();
+  const common::Stopwatch t0;
   fs::create_directories(out_dir);
   DiamondRig rig(DiamondRigOptions{});
   char text[320];
@@ -486,7 +482,6 @@ DiamondDemoResult RunDiamondDemo(
                   runs[k].measured_points, 100 * runs[k].true_position_rms);
     expect(DiamondServoExitCode(runs[k]) == kExitOk && runs[k].measured_points >= 10, text);
   }
-  rig.Disable();
   result.straightness_apriori = runs[0].true_straightness;
   result.straightness_identified = runs[1].true_straightness;
   result.measured_apriori = runs[0].measured_straightness;
@@ -500,7 +495,7 @@ DiamondDemoResult RunDiamondDemo(
                 100 * result.straightness_apriori, 100 * result.straightness_identified, gain,
                 100 * result.measured_apriori, 100 * result.measured_identified);
   expect(gain >= 3.0, text);
-  result.wall_seconds = WallSince(t0);
+  result.wall_seconds = t0.Seconds();
   return result;
 }
 

@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "calibration/diamond/diamond_calibration_io.h"
+#include "common/stopwatch.h"
 #include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/common/realtime.h"
@@ -36,10 +37,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
-
-double WallSince(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 
 // --- record -------------------------------------------------------------------------------------
 
@@ -156,7 +153,7 @@ DiamondRecordSummary RecordDiamondDataset(DiamondRig* rig, const DiamondRecordOp
   if (o.samples < 10 || !(o.speed > 0) || !(o.inset >= 0)) {
     throw std::invalid_argument("--samples must be >= 10, --speed > 0, inset >= 0");
   }
-  const auto t0 = std::chrono::steady_clock::now();
+  const common::Stopwatch t0;
   DiamondRecordSummary summary;
   summary.simulated = rig->simulated();
   rig->Enable();
@@ -239,7 +236,7 @@ DiamondRecordSummary RecordDiamondDataset(DiamondRig* rig, const DiamondRecordOp
   }
   if (!summary.hardware_fault) rig->MoveTo(home, o.speed);
   rig->Release();
-  summary.wall_seconds = WallSince(t0);
+  summary.wall_seconds = t0.Seconds();
   return summary;
 }
 
@@ -261,7 +258,7 @@ DiamondCalibrationRun CalibrateDiamondFromDataset(const DiamondCalibrateOptions&
 
   run.images = static_cast<int>(d.samples.size());
   std::vector<calibration::DiamondSample> samples;
-  const auto t0 = std::chrono::steady_clock::now();
+  const common::Stopwatch t0;
   for (const calibration::DiamondDatasetSample& s : d.samples) {
     calibration::DiamondSample sample;
     sample.q = s.q;
@@ -292,7 +289,7 @@ DiamondCalibrationRun CalibrateDiamondFromDataset(const DiamondCalibrateOptions&
     sample.pixel = m.pixel;
     samples.push_back(sample);
   }
-  run.detection_seconds = WallSince(t0);
+  run.detection_seconds = t0.Seconds();
   run.detected = static_cast<int>(samples.size());
 
   calibration::DiamondIdentificationOptions options;
@@ -300,9 +297,9 @@ DiamondCalibrationRun CalibrateDiamondFromDataset(const DiamondCalibrateOptions&
                                                : calibration::DiamondResidual::kPixel;
   options.pixel_sigma = o.pixel_sigma;
   options.estimate_camera_distance = o.estimate_camera_distance;
-  const auto t1 = std::chrono::steady_clock::now();
+  const common::Stopwatch t1;
   run.summary = calibration::IdentifyDiamond(samples, *camera, d.nominal, d.X_OC, options);
-  run.identification_seconds = WallSince(t1);
+  run.identification_seconds = t1.Seconds();
   const calibration::DiamondIdentificationSummary& s = run.summary;
   bool all_identified = true;
   for (const calibration::DiamondParameterEstimate& p : s.parameters) {
@@ -516,7 +513,10 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
   if (!rig->enabled()) rig->Enable();
   run.approach = rig->MoveTo(start, o.approach_speed, &controller.model);
   run.reached_start = run.approach.outcome == control::DiamondLoopOutcome::kCompleted;
-  if (!run.reached_start) return run;
+  if (!run.reached_start) {
+    rig->Release();  // the loop has put the drives in their safe state; the watchdog off too
+    return run;
+  }
 
   // The camera: on a stepped simulated clock polled once per cycle without waiting (a frame is
   // rendered and processed when one is due; simulated time stands still meanwhile); on a real

@@ -160,9 +160,10 @@ struct DiamondServoRun {
 
 // Moves to options.from (task-space PD in the controller's model), then follows the line to
 // options.to with the PD, or servoes the marker to the projection of options.to with the IBVS,
-// measuring the marker path with the camera. Enables the drives (if not yet) and leaves them
-// enabled; the caller's rig disables them. Throws std::invalid_argument (bad calibration file, a
-// line or target outside the workspace, naming --from / --to), hal::HalError.
+// measuring the marker path with the camera. Enables the drives (if not yet) and releases them
+// when its loop ends (DiamondRig::Release: disabled, watchdog off). Throws std::invalid_argument
+// (bad calibration file, a line or target outside the workspace, naming --from / --to),
+// hal::HalError.
 DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& options);
 
 // "(φ, γ) deg" of a task point (rad), with two decimals: how the jobs name a point in messages.

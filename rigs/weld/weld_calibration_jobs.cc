@@ -13,6 +13,7 @@
 #include "calibration/weld_mount/mount_calibration_io.h"
 #include "calibration/weld_mount/mount_dataset.h"
 #include "calibration/weld_mount/mount_plan.h"
+#include "common/stopwatch.h"
 #include "common/units.h"
 #include "hal/common/error.h"
 #include "hal/weld/weld_robot_client.h"
@@ -34,10 +35,6 @@ constexpr size_t kMinPoints = 20;
 const char* ToString(LaserAngleSource s) {
   return s == LaserAngleSource::kCommanded ? "the commanded stepper angle"
                                            : "eq. 11 from the stripes' crossing";
-}
-
-double Seconds(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 // Board poses for the scanner calibration: the robot at its home (the scanner 0.40 m from the
@@ -102,15 +99,7 @@ PointScanner LoadPointScanner(const std::string& scanner_file, const WeldRig& ri
     s.description = text;
     return s;
   }
-  const calibration::LaserScannerCalibrationFile file =
-      calibration::ReadLaserScannerCalibration(scanner_file);
-  if (!file.result.rotating_calibrated || !file.result.fixed_calibrated) {
-    throw std::invalid_argument("scanner calibration file " + scanner_file + ": " +
-                                (file.result.rotating_calibrated ? "the fixed" : "the rotating") +
-                                " laser is not calibrated (rotating_laser.calibrated / "
-                                "fixed_laser.calibrated); recalibrate "
-                                "with `kinevis calibrate scanner`");
-  }
+  const calibration::LaserScannerCalibrationFile file = ReadCalibratedScanner(scanner_file);
   s.geometry = file.result.geometry;
   s.camera = vision::OpenCameraModel(file.metadata.camera);
   if (s.camera->width() != rig.camera_model().width() ||
@@ -223,15 +212,29 @@ ScannerRecordReport RecordScannerDataset(WeldRig* rig, const ScannerRecordOption
   return report;
 }
 
+calibration::LaserScannerCalibrationFile ReadCalibratedScanner(const std::string& path) {
+  calibration::LaserScannerCalibrationFile file = calibration::ReadLaserScannerCalibration(path);
+  if (!file.result.rotating_calibrated || !file.result.fixed_calibrated) {
+    throw std::invalid_argument(
+        "scanner calibration file " + path + ": " +
+        (file.result.rotating_calibrated ? "the fixed" : "the rotating") +
+        " laser is not calibrated (rotating_laser.calibrated / "
+        "fixed_laser.calibrated; the stripe crossing needs the fixed laser, "
+        "the points the rotating one); recalibrate with `kinevis calibrate "
+        "scanner`");
+  }
+  return file;
+}
+
 ScannerCalibrationRun CalibrateScannerFromDataset(const std::string& dataset_dir,
                                                   const std::string& out) {
   ScannerCalibrationRun r;
   r.dataset = calibration::ReadLaserScannerDataset(dataset_dir);
   const std::unique_ptr<vision::CameraModel> camera =
       vision::OpenCameraModel(r.dataset.camera_model);
-  const auto t0 = std::chrono::steady_clock::now();
+  const common::Stopwatch t0;
   r.run = calibration::CalibrateLaserScannerDataset(r.dataset, *camera, MakeStripeExtractor());
-  r.wall_seconds = Seconds(t0);
+  r.wall_seconds = t0.Seconds();
   calibration::LaserScannerCalibrationMetadata m;
   m.camera = r.dataset.camera_model;
   m.camera_name = r.dataset.camera_name;
@@ -458,9 +461,9 @@ MountCalibrationRun CalibrateScannerMountFromDataset(const std::string& dataset_
   options.estimate_dh = o.estimate_dh;
   options.touch_sigma = o.touch_sigma;
   options.scan_sigma = o.scan_sigma;
-  const auto t0 = std::chrono::steady_clock::now();
+  const common::Stopwatch t0;
   r.summary = calibration::CalibrateScannerMount(r.data, options);
-  r.wall_seconds = Seconds(t0);
+  r.wall_seconds = t0.Seconds();
   r.calibrated = true;
   const calibration::MountCalibrationSummary& s = r.summary;
 

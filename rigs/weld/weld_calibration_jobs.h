@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/laser_scanner/laser_scanner_dataset.h"
 #include "calibration/weld_mount/mount_calibration.h"
 #include "calibration/weld_mount/mount_dataset.h"
@@ -48,6 +49,11 @@ struct ScannerCalibrationRun {
   calibration::LaserScannerDatasetCalibration run;
   double wall_seconds = 0.0;
 };
+
+// A scanner calibration file whose two lasers are both calibrated (the stripe crossing needs the
+// fixed laser, the points the rotating one); throws std::invalid_argument naming the file and the
+// laser that is not.
+calibration::LaserScannerCalibrationFile ReadCalibratedScanner(const std::string& path);
 
 // Board poses from the dots, stripes from the lasers-on images (vision/laser/laser_stripes.h),
 // the calibration (calibration/laser_scanner/), written to `out` (laser_scanner_calibration_io.h).

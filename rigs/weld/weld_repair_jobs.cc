@@ -10,10 +10,11 @@
 #include <memory>
 #include <stdexcept>
 
-#include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/weld_mount/mount_calibration_io.h"
 #include "calibration/weld_mount/scan_dataset.h"
+#include "common/stopwatch.h"
 #include "control/weld/weld_plan_io.h"
+#include "rigs/weld/weld_calibration_jobs.h"
 #include "sim/weld_cell_world.h"
 #include "vision/camera/camera_file.h"
 #include "vision/cloud/cloud_sidecar.h"
@@ -24,10 +25,6 @@ namespace kinevis::rigs {
 namespace {
 
 namespace fs = std::filesystem;
-
-double Seconds(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 
 // The sidecar path for a map named X.ply or X.yaml.
 std::string SidecarPath(const std::string& map) {
@@ -90,13 +87,7 @@ vision::laser::ScannerGeometry LoadScannerGeometry(const std::string& path, std:
     *source = "nominal (seed 004 Table 2; no --scanner calibration given)";
     return vision::laser::ScannerGeometry::Seed004();
   }
-  const calibration::LaserScannerCalibrationFile file =
-      calibration::ReadLaserScannerCalibration(path);
-  if (!file.result.rotating_calibrated || !file.result.fixed_calibrated) {
-    throw std::invalid_argument("--scanner " + path +
-                                ": both lasers must be calibrated (the crossing needs the fixed "
-                                "laser, the points the rotating one)");
-  }
+  const calibration::LaserScannerCalibrationFile file = ReadCalibratedScanner(path);
   *source = path;
   return file.result.geometry;
 }
@@ -158,7 +149,7 @@ ScanJobReport ScanWorkpiece(WeldRig* rig, const ScanJobOptions& o) {
   Eigen::Isometry3d X_5C = sim::NominalScannerMount();
   r.mount_source = "nominal (CAD; no --mount calibration given)";
   r.robot_source = "nominal (seed 004 D-H, built-in)";
-  const auto t0 = std::chrono::steady_clock::now();
+  const common::Stopwatch t0;
   if (rig != nullptr) {
     robot = rig->nominal();
     X_5C = rig->X_5C_nominal();
@@ -172,7 +163,7 @@ ScanJobReport ScanWorkpiece(WeldRig* rig, const ScanJobOptions& o) {
     const vision::laser::ScannerModel model(*camera, r.geometry);
     r.frames = SweepDataset(d, model);
   }
-  r.wall_seconds = Seconds(t0);
+  r.wall_seconds = t0.Seconds();
   if (!o.mount.empty()) {
     // The calibrated mount, and the D-H errors when they were estimated with it.
     const calibration::ScannerMountCalibrationFile mount =
@@ -254,9 +245,9 @@ WeldPathRun PlanWeldPath(const std::string& map_path, const control::WeldPlanOpt
     model.X_5T = sidecar.X_5T;
   }
   WeldPathRun r;
-  const auto t0 = std::chrono::steady_clock::now();
+  const common::Stopwatch t0;
   r.plan = control::PlanWeldRepair(map, model, options);
-  r.wall_seconds = Seconds(t0);
+  r.wall_seconds = t0.Seconds();
   control::WeldPlanMetadata m;
   m.source = map_path;
   m.robot = sidecar.robot_calibration;
