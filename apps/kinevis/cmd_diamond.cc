@@ -114,7 +114,7 @@ void PrintDiamondCalibration(const DiamondCalibrationRun& run) {
       s.offset_sigma[0] / common::kDeg, s.offset_sigma[1] / common::kDeg);
   const calibration::IdentifiabilityReport& id = s.identifiability;
   std::printf("identifiability: rank %d of %d free parameters, condition number %.1f\n", id.rank,
-              id.free_parameters, id.condition_number);
+              id.parameters, id.condition_number);
   for (const std::string& u : id.unidentified) std::printf("  unidentified: %s\n", u.c_str());
   for (const std::string& g : id.gauges) std::printf("  gauge: %s\n", g.c_str());
   for (const std::string& c : id.strong_correlations) {
@@ -152,7 +152,7 @@ void PrintDiamondCalibration(const DiamondCalibrationRun& run) {
     std::printf(
         "identification FAILED: %s (status %s, rank %d of %d); see the identifiability report\n",
         s.ok() ? "a parameter is not identified" : "no converged solution",
-        calibration::ToString(s.status), id.rank, id.free_parameters);
+        calibration::ToString(s.status), id.rank, id.parameters);
   }
 }
 
@@ -442,7 +442,7 @@ DiamondDemoResult RunDiamondDemo(
                 "identified R, alpha, beta, offsets and camera pose from %d marker detections "
                 "(%s, rank %d of %d, condition %.0f)",
                 run.detected, calibration::ToString(s.status), s.identifiability.rank,
-                s.identifiability.free_parameters, s.identifiability.condition_number);
+                s.identifiability.parameters, s.identifiability.condition_number);
   expect(run.identified, text);
   const robots::DiamondModel& t = rig.world()->true_model();
   result.radius_error = s.model.radius / t.radius - 1;

@@ -51,12 +51,14 @@ std::string Combination(const Eigen::VectorXd& v, const std::vector<std::string>
   return out;
 }
 
-std::string Sigma(double sigma) {
-  if (std::isinf(sigma)) return "unidentified";
+// Report figures: 4 significant digits ("nan", "inf" as such).
+std::string Short(double value) {
   char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.3g", sigma);
+  std::snprintf(buffer, sizeof buffer, "%.4g", value);
   return buffer;
 }
+
+std::string Sigma(double sigma) { return std::isinf(sigma) ? "unidentified" : Short(sigma); }
 
 }  // namespace
 
@@ -218,7 +220,7 @@ std::string EstimationReport::BriefReport() const {
     << " estimated parameters identified (rank " << identifiability.rank << ")";
   if (!residuals.empty()) {
     const ResidualSummary& r = residuals.front();
-    s << ", " << r.name << " rms " << common::Num(r.rms) << " " << r.unit << " over " << r.count;
+    s << ", " << r.name << " rms " << Short(r.rms) << " " << r.unit << " over " << r.count;
   }
   s << ", " << warnings.size() << " warning" << (warnings.size() == 1 ? "" : "s");
   return s.str();
@@ -228,11 +230,11 @@ std::string EstimationReport::FullReport() const {
   std::ostringstream s;
   s << BriefReport() << "\n";
   if (!message.empty()) s << "  message: " << message << "\n";
-  s << "  iterations " << iterations << ", cost " << common::Num(initial_cost) << " -> "
-    << common::Num(final_cost) << ", variance factor " << common::Num(variance_factor) << "\n";
+  s << "  iterations " << iterations << ", cost " << Short(initial_cost) << " -> "
+    << Short(final_cost) << ", variance factor " << Short(variance_factor) << "\n";
   for (const ResidualSummary& r : residuals) {
     s << "  residual " << r.name << " (" << r.unit << "): count " << r.count << ", mean "
-      << common::Num(r.mean) << ", rms " << common::Num(r.rms) << ", max " << common::Num(r.max_abs)
+      << Short(r.mean) << ", rms " << Short(r.rms) << ", max " << Short(r.max_abs)
       << "\n";
   }
   for (const ParameterEstimate& p : parameters) {
@@ -246,7 +248,7 @@ std::string EstimationReport::FullReport() const {
   }
   const Identifiability& id = identifiability;
   s << "  identifiability: rank " << id.rank << " of " << id.parameters << ", condition "
-    << common::Num(id.condition_number) << "\n";
+    << Short(id.condition_number) << "\n";
   for (const std::string& u : id.unidentified) s << "    unidentified: " << u << "\n";
   for (const std::string& g : id.gauges) s << "    gauge: " << g << "\n";
   for (const std::string& c : id.strong_correlations) s << "    correlated: " << c << "\n";

@@ -7,11 +7,15 @@
 #include <fstream>
 #include <stdexcept>
 
+#include "calibration/common/estimation_yaml_internal.h"
+
 namespace kinevis::calibration {
 namespace {
 
 constexpr const char* kKind = "kinevis-diamond-calibration";
-constexpr int kVersion = 1;
+// 2: the estimator contract's `estimation:` block (calibration/common/estimation_yaml_internal.h).
+// Version 1 files (without it) are read, their report derived from what they hold.
+constexpr int kVersion = 2;
 
 std::string NowUtc() {
   const std::time_t now = std::time(nullptr);
@@ -278,7 +282,7 @@ void WriteDiamondCalibration(const std::string& path, const DiamondIdentificatio
   out << YAML::EndMap;
   const IdentifiabilityReport& id = s.identifiability;
   out << YAML::Key << "identifiability" << YAML::Value << YAML::BeginMap;
-  out << YAML::Key << "free_parameters" << YAML::Value << id.free_parameters;
+  out << YAML::Key << "free_parameters" << YAML::Value << id.parameters;
   out << YAML::Key << "rank" << YAML::Value << id.rank;
   out << YAML::Key << "condition_number" << YAML::Value << id.condition_number;
   out << YAML::Key << "singular_values" << YAML::Value;
@@ -288,6 +292,7 @@ void WriteDiamondCalibration(const std::string& path, const DiamondIdentificatio
   EmitStrings(out, "strong_correlations", id.strong_correlations);
   out << YAML::EndMap;
   EmitStrings(out, "warnings", s.warnings);
+  internal::EmitEstimation(out, s.estimation);
   out << YAML::EndMap;
   std::ofstream file(path);
   file << "# kinevis DIAMOND calibration (seed 001); format: docs/diamond-calibration.md.\n"
@@ -443,7 +448,7 @@ DiamondCalibrationFile ReadDiamondCalibration(const std::string& path) {
   const YAML::Node id = r.Child(root, "identifiability", "identifiability");
   if (id) {
     IdentifiabilityReport& rep = s.identifiability;
-    rep.free_parameters = r.Int(id, "free_parameters", "identifiability.free_parameters", 0);
+    rep.parameters = r.Int(id, "free_parameters", "identifiability.free_parameters", 0);
     rep.rank = r.Int(id, "rank", "identifiability.rank", 0);
     rep.condition_number =
         r.Double(id, "condition_number", "identifiability.condition_number", false);
@@ -452,15 +457,22 @@ DiamondCalibrationFile ReadDiamondCalibration(const std::string& path) {
     rep.gauges = r.Strings(id, "gauges", "identifiability.gauges");
     rep.strong_correlations =
         r.Strings(id, "strong_correlations", "identifiability.strong_correlations");
-    if (rep.rank > rep.free_parameters) {
+    if (rep.rank > rep.parameters) {
       r.Bad("identifiability.rank", std::to_string(rep.rank) + " > free_parameters = " +
-                                        std::to_string(rep.free_parameters));
+                                        std::to_string(rep.parameters));
     }
   }
   s.warnings = r.Strings(root, "warnings", "warnings");
   r.ThrowIfBad();
   if (const std::string bad = m.Validate(); !bad.empty()) r.Bad("model", bad);
   r.ThrowIfBad();
+  if (version >= 2) {
+    internal::CheckedYamlReader contract("diamond calibration file", path);
+    s.estimation = internal::ReadEstimation(contract, root);
+    contract.ThrowIfBad();
+  } else {
+    s.estimation = DiamondEstimationReport(s);
+  }
   return f;
 }
 

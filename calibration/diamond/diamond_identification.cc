@@ -223,7 +223,70 @@ Eigen::Isometry3d DiamondCameraPoseFromParameters(const X& x,
   return X_OC;
 }
 
-DiamondIdentificationSummary IdentifyDiamond(const std::vector<DiamondSample>& samples,
+namespace {
+
+EstimationStatus ContractStatus(const DiamondIdentificationSummary& s) {
+  switch (s.status) {
+    case DiamondIdentificationStatus::kConverged:
+      return s.identifiability.rank == s.identifiability.parameters
+                 ? EstimationStatus::kConverged
+                 : EstimationStatus::kUnidentified;
+    case DiamondIdentificationStatus::kNoConvergence:
+      return EstimationStatus::kNotConverged;
+    case DiamondIdentificationStatus::kTooFewSamples:
+      return EstimationStatus::kInsufficientData;
+    case DiamondIdentificationStatus::kNothingToEstimate:
+    case DiamondIdentificationStatus::kSolverFailed:
+      break;
+  }
+  return EstimationStatus::kFailed;
+}
+
+void AddAxes(const ResidualStatistics& r, const char* name_x, const char* name_y,
+             const char* unit, std::vector<ResidualSummary>* out) {
+  for (int axis = 0; axis < 2; ++axis) {
+    ResidualSummary s;
+    s.name = axis == 0 ? name_x : name_y;
+    s.unit = unit;
+    s.count = r.count;
+    s.mean = r.mean[axis];
+    s.rms = r.rms[axis];
+    s.max_abs = r.sup[axis];
+    out->push_back(s);
+  }
+}
+
+}  // namespace
+
+EstimationReport DiamondEstimationReport(const DiamondIdentificationSummary& s) {
+  EstimationReport e;
+  e.estimator = "DIAMOND kinematics and camera pose (seed 001)";
+  e.status = ContractStatus(s);
+  e.message = s.solver_message;
+  if (s.status == DiamondIdentificationStatus::kNothingToEstimate ||
+      s.status == DiamondIdentificationStatus::kTooFewSamples) {
+    e.message = ToString(s.status);
+  }
+  e.iterations = s.iterations;
+  e.initial_cost = s.initial_cost;
+  e.final_cost = s.final_cost;
+  e.variance_factor = s.variance_factor;
+  if (s.pixel_residuals.count > 0) AddAxes(s.pixel_residuals, "pixel u", "pixel v", "px", &e.residuals);
+  if (s.task_residuals.count > 0) AddAxes(s.task_residuals, "task phi", "task gamma", "rad", &e.residuals);
+  for (int j = 0; j < kDiamondParameterCount; ++j) {
+    const DiamondParameterEstimate& p = s.parameters[j];
+    e.parameters.push_back({DiamondParameterName(j), DiamondParameterUnit(j), p.initial, p.value,
+                            p.sigma, p.estimated, p.identified});
+  }
+  if (s.covariance.rows() == kDiamondParameterCount) e.covariance = s.covariance;
+  e.identifiability = s.identifiability;
+  e.warnings = s.warnings;
+  return e;
+}
+
+namespace {
+
+DiamondIdentificationSummary Identify(const std::vector<DiamondSample>& samples,
                                              const vision::CameraModel& camera,
                                              const robots::DiamondModel& initial_model,
                                              const Eigen::Isometry3d& X_OC_initial,
@@ -546,56 +609,28 @@ DiamondIdentificationSummary IdentifyDiamond(const std::vector<DiamondSample>& s
   // --- identifiability and covariance ------------------------------------------------------------
   // J is ∂r/∂z; ∂r/∂x_j = J_j / s_j. The report scales ∂r/∂x again at the solution.
   Eigen::MatrixXd Jx(J.rows(), n_free);
-  Eigen::VectorXd report_scale(n_free);
-  for (int c = 0; c < n_free; ++c) {
-    const int j = free[c];
-    Jx.col(c) = J.col(j) / frame->scale[j];
-    const double extremal = Jx.col(c).cwiseAbs().maxCoeff();
-    report_scale[c] = extremal > 0 ? 1.0 / extremal : 1.0;
-  }
-  const Eigen::MatrixXd Js = Jx * report_scale.asDiagonal();
-  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(Js, Eigen::ComputeThinV);
-  const Eigen::VectorXd sv = svd.singularValues();
-  const Eigen::MatrixXd V = svd.matrixV();
-  report.free_parameters = n_free;
-  report.singular_values.assign(sv.data(), sv.data() + sv.size());
-  const double threshold = options.rank_tolerance * sv[0];
-  report.rank = 0;
-  for (int i = 0; i < sv.size(); ++i) report.rank += sv[i] > threshold ? 1 : 0;
-  report.condition_number = report.rank == n_free && sv[n_free - 1] > 0
-                                ? sv[0] / sv[n_free - 1]
-                                : std::numeric_limits<double>::infinity();
-  Eigen::VectorXd in_null = Eigen::VectorXd::Zero(n_free);
-  for (int i = report.rank; i < n_free; ++i) {
-    Eigen::VectorXd v = V.col(i);
-    int largest = 0;
-    v.cwiseAbs().maxCoeff(&largest);
-    if (v[largest] < 0) v = -v;
-    in_null += v.cwiseAbs2();
-    std::string text;
-    for (int c = 0; c < n_free; ++c) {
-      if (std::abs(v[c]) < 0.05) continue;
-      char buf[96];
-      std::snprintf(buf, sizeof buf, "%s%.3f %s", text.empty() ? "" : (v[c] < 0 ? " - " : " + "),
-                    text.empty() ? v[c] : std::abs(v[c]), DiamondParameterName(free[c]));
-      text += buf;
-    }
-    report.unidentified.push_back(text);
+  for (int c = 0; c < n_free; ++c) Jx.col(c) = J.col(free[c]) / frame->scale[free[c]];
+  std::vector<std::string> names;
+  for (int c = 0; c < n_free; ++c) names.push_back(DiamondParameterName(free[c]));
+  IdentifiabilityOptions analysis;
+  analysis.scaling = IdentifiabilityOptions::Scaling::kMaxAbs;
+  analysis.rank_tolerance = options.rank_tolerance;
+  analysis.null_tolerance = 1e-3;  // |null component| of an identified parameter
+  analysis.warn_correlation = options.warn_correlation;
+  {
+    std::vector<std::string> gauges = std::move(report.gauges);
+    report = AnalyzeIdentifiability(Jx, names, analysis);
+    report.gauges = std::move(gauges);
   }
   const int dof = static_cast<int>(J.rows()) - report.rank;
   summary.variance_factor = dof > 0 ? 2.0 * summary.final_cost / dof : 0.0;
-  Eigen::MatrixXd pinv = Eigen::MatrixXd::Zero(n_free, n_free);
-  for (int i = 0; i < report.rank; ++i) {
-    pinv += V.col(i) * V.col(i).transpose() / (sv[i] * sv[i]);
-  }
-  const Eigen::MatrixXd cov_free =
-      summary.variance_factor * report_scale.asDiagonal() * pinv * report_scale.asDiagonal();
+  const Eigen::MatrixXd cov_free = summary.variance_factor * report.normal_inverse;
   for (int a = 0; a < n_free; ++a) {
     for (int b = 0; b < n_free; ++b) summary.covariance(free[a], free[b]) = cov_free(a, b);
   }
   for (int c = 0; c < n_free; ++c) {
     DiamondParameterEstimate& p = summary.parameters[free[c]];
-    p.identified = in_null[c] < 1e-6;
+    p.identified = report.identified[static_cast<size_t>(c)];
     p.sigma = p.identified ? std::sqrt(std::max(0.0, cov_free(c, c)))
                            : std::numeric_limits<double>::infinity();
   }
@@ -611,23 +646,6 @@ DiamondIdentificationSummary IdentifyDiamond(const std::vector<DiamondSample>& s
           m_ok && h_ok ? std::sqrt(std::max(0.0, var)) : std::numeric_limits<double>::infinity();
     }
   }
-  for (int a = 0; a < n_free; ++a) {
-    for (int b = a + 1; b < n_free; ++b) {
-      if (!summary.parameters[free[a]].identified || !summary.parameters[free[b]].identified) {
-        continue;
-      }
-      const double denom = std::sqrt(cov_free(a, a) * cov_free(b, b));
-      if (!(denom > 0)) continue;
-      const double rho = cov_free(a, b) / denom;
-      if (std::abs(rho) >= options.warn_correlation) {
-        char buf[128];
-        std::snprintf(buf, sizeof buf, "%s ~ %s: %.4f", DiamondParameterName(free[a]),
-                      DiamondParameterName(free[b]), rho);
-        report.strong_correlations.push_back(buf);
-      }
-    }
-  }
-
   // --- warnings
   // ------------------------------------------------------------------------------------
   if (report.rank < n_free) {
@@ -657,6 +675,19 @@ DiamondIdentificationSummary IdentifyDiamond(const std::vector<DiamondSample>& s
                                  " px (model error or outliers if larger)");
     }
   }
+  return summary;
+}
+
+}  // namespace
+
+DiamondIdentificationSummary IdentifyDiamond(const std::vector<DiamondSample>& samples,
+                                             const vision::CameraModel& camera,
+                                             const robots::DiamondModel& initial_model,
+                                             const Eigen::Isometry3d& X_OC_initial,
+                                             const DiamondIdentificationOptions& options) {
+  DiamondIdentificationSummary summary =
+      Identify(samples, camera, initial_model, X_OC_initial, options);
+  summary.estimation = DiamondEstimationReport(summary);
   return summary;
 }
 

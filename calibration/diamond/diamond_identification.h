@@ -54,6 +54,7 @@
 #include <string>
 #include <vector>
 
+#include "calibration/common/estimation.h"
 #include "robots/diamond/diamond_model.h"
 #include "vision/camera/camera_model.h"
 
@@ -153,21 +154,9 @@ struct ResidualStatistics {
   double rms_norm = 0.0;  // sqrt(mean of |r|²)
 };
 
-struct IdentifiabilityReport {
-  int free_parameters = 0;
-  int rank = 0;
-  // σ_max/σ_min of the column-scaled Jacobian of the free parameters (+inf when rank-deficient).
-  double condition_number = std::numeric_limits<double>::infinity();
-  std::vector<double> singular_values;  // descending
-  // Each null-space direction as a combination of scaled parameters, e.g.
-  // "0.707 radius - 0.707 camera_distance" (coefficients of the unit null vector, |c| >= 0.05).
-  std::vector<std::string> unidentified;
-  // The gauges the options fixed, in words.
-  std::vector<std::string> gauges;
-  // Pairs of estimated parameters with |correlation| >= warn_correlation, e.g.
-  // "alpha ~ beta: -0.995".
-  std::vector<std::string> strong_correlations;
-};
+// The identifiability of the free parameters (calibration/common/estimation.h), analysed on the
+// Jacobian with columns scaled by their largest |entry|; `gauges` names what the options fixed.
+using IdentifiabilityReport = Identifiability;
 
 enum class DiamondIdentificationStatus {
   kConverged,
@@ -215,6 +204,9 @@ struct DiamondIdentificationSummary {
 
   IdentifiabilityReport identifiability;
   std::vector<std::string> warnings;
+  // The same in the estimator contract's shape (parameters named and with units, residuals in
+  // px and rad, status converged only when every estimated parameter is identified).
+  EstimationReport estimation;
 
   bool ok() const { return status == DiamondIdentificationStatus::kConverged; }
 };
@@ -230,6 +222,10 @@ DiamondIdentificationSummary IdentifyDiamond(const std::vector<DiamondSample>& s
                                              const robots::DiamondModel& initial_model,
                                              const Eigen::Isometry3d& X_OC_initial,
                                              const DiamondIdentificationOptions& options = {});
+
+// The estimator contract's report of a summary (what IdentifyDiamond puts in `estimation`; the
+// file reader uses it for files written before the contract).
+EstimationReport DiamondEstimationReport(const DiamondIdentificationSummary& summary);
 
 // The camera pose of parameters x (SI, the order above) for initial pose X_OC_initial.
 Eigen::Isometry3d DiamondCameraPoseFromParameters(

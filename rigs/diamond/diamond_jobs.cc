@@ -305,8 +305,8 @@ DiamondCalibrationRun CalibrateDiamondFromDataset(const DiamondCalibrateOptions&
   for (const calibration::DiamondParameterEstimate& p : s.parameters) {
     if (p.estimated && !p.identified) all_identified = false;
   }
-  run.identified = s.ok() && s.identifiability.rank == s.identifiability.free_parameters &&
-                   s.identifiability.free_parameters > 0 && all_identified;
+  run.identified = s.ok() && s.identifiability.rank == s.identifiability.parameters &&
+                   s.identifiability.parameters > 0 && all_identified;
 
   calibration::DiamondCalibrationMetadata metadata;
   metadata.camera = d.camera_name + " (" + d.camera_model + ")";

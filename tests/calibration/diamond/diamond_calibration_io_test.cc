@@ -84,12 +84,41 @@ TEST(DiamondCalibrationIoTest, RoundTripsEverythingStored) {
   EXPECT_EQ(r.identifiability.gauges, s.identifiability.gauges);
   EXPECT_EQ(r.warnings, s.warnings);
   EXPECT_EQ(r.samples_used, s.samples_used);
+  EXPECT_EQ(r.estimation.status, EstimationStatus::kUnidentified);
+  EXPECT_EQ(r.estimation.parameters.size(), s.estimation.parameters.size());
+  EXPECT_EQ(r.estimation.Find("radius")->sigma, s.estimation.Find("radius")->sigma);
+  EXPECT_EQ(r.estimation.covariance, s.estimation.covariance);
+  EXPECT_EQ(r.estimation.identifiability.unidentified, s.estimation.identifiability.unidentified);
   // The file is a robot description too.
   const robots::DiamondDescription d = robots::LoadDiamondDescription(path);
   EXPECT_DOUBLE_EQ(d.model.radius, s.model.radius);
   EXPECT_DOUBLE_EQ(d.model.joint_offsets[0], s.model.joint_offsets[0]);
   EXPECT_EQ(d.name, "diamond-calibrated");
   fs::remove(path);
+}
+
+// Files written before the estimator contract (version 1, no estimation: block) still read, their
+// report derived from what they hold.
+TEST(DiamondCalibrationIoTest, ReadsVersionOneFilesWithoutTheEstimationBlock) {
+  const DiamondIdentificationSummary s = Identified();
+  const std::string path = TempPath("version1.yaml");
+  WriteDiamondCalibration(path, s, {});
+  std::string text;
+  {
+    std::ifstream in(path);
+    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  const size_t block = text.find("\nestimation:");
+  ASSERT_NE(block, std::string::npos);
+  text.erase(block + 1);
+  const size_t version = text.find("version: 2");
+  ASSERT_NE(version, std::string::npos);
+  text.replace(version, 10, "version: 1");
+  std::ofstream(path) << text;
+  const DiamondCalibrationFile f = ReadDiamondCalibration(path);
+  EXPECT_EQ(f.summary.estimation.status, EstimationStatus::kUnidentified);
+  EXPECT_EQ(f.summary.estimation.Validate(), "");
+  EXPECT_DOUBLE_EQ(f.summary.estimation.Find("alpha")->value, s.model.alpha);
 }
 
 TEST(DiamondCalibrationIoTest, RefusesBadFilesNamingEveryKey) {

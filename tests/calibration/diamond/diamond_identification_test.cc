@@ -89,11 +89,25 @@ TEST(DiamondIdentificationTest, ExactDataRecoverTheTruthFromTheAPrioriSet) {
   EXPECT_LT((s.X_OC.linear() - X.linear()).norm(), 1e-9);
   EXPECT_LT(s.pixel_residuals.rms_norm, 1e-6);
   EXPECT_LT(s.task_residuals.sup.maxCoeff(), 1e-8);
-  EXPECT_EQ(s.identifiability.rank, s.identifiability.free_parameters);
-  EXPECT_EQ(s.identifiability.free_parameters, 9);
+  EXPECT_EQ(s.identifiability.rank, s.identifiability.parameters);
+  EXPECT_EQ(s.identifiability.parameters, 9);
   EXPECT_TRUE(s.identifiability.unidentified.empty());
   EXPECT_EQ(s.identifiability.gauges.size(), 2u);
   EXPECT_GT(s.initial_cost, 1e3 * s.final_cost + 1.0);
+  // The estimator contract carries the same, named and with units.
+  const EstimationReport& e = s.estimation;
+  EXPECT_EQ(e.Validate(), "");
+  EXPECT_EQ(e.status, EstimationStatus::kConverged);
+  ASSERT_EQ(e.parameters.size(), static_cast<size_t>(kDiamondParameterCount));
+  ASSERT_NE(e.Find("radius"), nullptr);
+  EXPECT_EQ(e.Find("radius")->unit, "m");
+  EXPECT_DOUBLE_EQ(e.Find("radius")->value, s.model.radius);
+  EXPECT_EQ(e.Find("alpha")->unit, "rad");
+  EXPECT_EQ(e.identifiability.rank, 9);
+  ASSERT_EQ(e.residuals.size(), 4u);  // pixel u, v; task phi, gamma
+  EXPECT_EQ(e.residuals[0].unit, "px");
+  EXPECT_EQ(e.residuals[0].count, static_cast<int>(samples.size()));
+  EXPECT_LT(e.residuals[0].rms, 1e-6);
 }
 
 // With 0.3 px noise: the estimates sit within a few σ of the truth and σ itself is right (the
@@ -159,7 +173,7 @@ TEST(DiamondIdentificationTest, ReportsTheScaleAndAzimuthGauges) {
     o.estimate_camera_distance = true;
     const DiamondIdentificationSummary s =
         IdentifyDiamond(samples, *camera, robots::DiamondModel::APriori(), NominalCameraPose(), o);
-    EXPECT_EQ(s.identifiability.rank, s.identifiability.free_parameters - 1);
+    EXPECT_EQ(s.identifiability.rank, s.identifiability.parameters - 1);
     ASSERT_EQ(s.identifiability.unidentified.size(), 1u);
     EXPECT_THAT(s.identifiability.unidentified[0], HasSubstr("radius"));
     EXPECT_THAT(s.identifiability.unidentified[0], HasSubstr("camera_distance"));
@@ -167,13 +181,17 @@ TEST(DiamondIdentificationTest, ReportsTheScaleAndAzimuthGauges) {
     EXPECT_TRUE(std::isinf(s.parameters[kDiamondRadius].sigma));
     EXPECT_TRUE(s.parameters[kDiamondAlpha].identified);  // the angles do not scale
     EXPECT_THAT(s.warnings, testing::Contains(HasSubstr("rank-deficient")));
+    EXPECT_EQ(s.estimation.status, EstimationStatus::kUnidentified);
+    EXPECT_EQ(s.estimation.Validate(), "");
+    EXPECT_TRUE(std::isinf(s.estimation.Find("radius")->sigma));
+    EXPECT_THAT(s.estimation.BriefReport(), HasSubstr("unidentified, 8 of 10 estimated parameters identified (rank 9)"));
   }
   {
     DiamondIdentificationOptions o;
     o.estimate_mean_offset = true;
     const DiamondIdentificationSummary s =
         IdentifyDiamond(samples, *camera, robots::DiamondModel::APriori(), NominalCameraPose(), o);
-    EXPECT_EQ(s.identifiability.rank, s.identifiability.free_parameters - 1);
+    EXPECT_EQ(s.identifiability.rank, s.identifiability.parameters - 1);
     ASSERT_EQ(s.identifiability.unidentified.size(), 1u);
     EXPECT_THAT(s.identifiability.unidentified[0], HasSubstr("mean_offset"));
     EXPECT_THAT(s.identifiability.unidentified[0], HasSubstr("camera_direction"));
@@ -209,7 +227,7 @@ TEST(DiamondIdentificationTest, DetectsDegenerateExcitation) {
   ASSERT_GT(samples.size(), 15u);
   const DiamondIdentificationSummary s =
       IdentifyDiamond(samples, *camera, nominal, NominalCameraPose());
-  EXPECT_TRUE(s.identifiability.rank < s.identifiability.free_parameters ||
+  EXPECT_TRUE(s.identifiability.rank < s.identifiability.parameters ||
               s.identifiability.condition_number > 1e3)
       << s.identifiability.condition_number;
   EXPECT_FALSE(s.warnings.empty());
