@@ -234,8 +234,7 @@ std::string EstimationReport::FullReport() const {
     << Short(final_cost) << ", variance factor " << Short(variance_factor) << "\n";
   for (const ResidualSummary& r : residuals) {
     s << "  residual " << r.name << " (" << r.unit << "): count " << r.count << ", mean "
-      << Short(r.mean) << ", rms " << Short(r.rms) << ", max " << Short(r.max_abs)
-      << "\n";
+      << Short(r.mean) << ", rms " << Short(r.rms) << ", max " << Short(r.max_abs) << "\n";
   }
   for (const ParameterEstimate& p : parameters) {
     s << "  " << p.name << " = " << common::Num(p.value) << " " << p.unit;

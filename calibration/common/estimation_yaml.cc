@@ -118,6 +118,10 @@ EstimationReport ReadEstimation(CheckedYamlReader& in, const YAML::Node& node,
   EstimationReport r;
   const YAML::Node e = in.Child(node, key, key);
   if (!e) return r;
+  if (!e.IsMap()) {
+    in.Bad(key, "not a mapping (" + CheckedYamlReader::Dump(e) + ")");
+    return r;
+  }
   const std::string k = key + ".";
   r.estimator = in.String(e, "estimator", k + "estimator");
   const std::string status = in.String(e, "status", k + "status");

@@ -46,7 +46,9 @@ class CheckedYamlReader {
   YAML::Node Child(const YAML::Node& node, const std::string& name, const std::string& key) {
     if (!node.IsMap() || !node[name]) {
       Bad(key, "missing");
-      return YAML::Node();
+      // Undefined (not null), so that callers' `if (!v)` skips what is missing instead of
+      // reporting it again as "not a number ()".
+      return YAML::Node(YAML::NodeType::Undefined);
     }
     return node[name];
   }

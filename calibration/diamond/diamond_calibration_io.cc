@@ -458,8 +458,8 @@ DiamondCalibrationFile ReadDiamondCalibration(const std::string& path) {
     rep.strong_correlations =
         r.Strings(id, "strong_correlations", "identifiability.strong_correlations");
     if (rep.rank > rep.parameters) {
-      r.Bad("identifiability.rank", std::to_string(rep.rank) + " > free_parameters = " +
-                                        std::to_string(rep.parameters));
+      r.Bad("identifiability.rank",
+            std::to_string(rep.rank) + " > free_parameters = " + std::to_string(rep.parameters));
     }
   }
   s.warnings = r.Strings(root, "warnings", "warnings");

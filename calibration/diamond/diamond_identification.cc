@@ -242,8 +242,8 @@ EstimationStatus ContractStatus(const DiamondIdentificationSummary& s) {
   return EstimationStatus::kFailed;
 }
 
-void AddAxes(const ResidualStatistics& r, const char* name_x, const char* name_y,
-             const char* unit, std::vector<ResidualSummary>* out) {
+void AddAxes(const ResidualStatistics& r, const char* name_x, const char* name_y, const char* unit,
+             std::vector<ResidualSummary>* out) {
   for (int axis = 0; axis < 2; ++axis) {
     ResidualSummary s;
     s.name = axis == 0 ? name_x : name_y;
@@ -271,8 +271,10 @@ EstimationReport DiamondEstimationReport(const DiamondIdentificationSummary& s) 
   e.initial_cost = s.initial_cost;
   e.final_cost = s.final_cost;
   e.variance_factor = s.variance_factor;
-  if (s.pixel_residuals.count > 0) AddAxes(s.pixel_residuals, "pixel u", "pixel v", "px", &e.residuals);
-  if (s.task_residuals.count > 0) AddAxes(s.task_residuals, "task phi", "task gamma", "rad", &e.residuals);
+  if (s.pixel_residuals.count > 0)
+    AddAxes(s.pixel_residuals, "pixel u", "pixel v", "px", &e.residuals);
+  if (s.task_residuals.count > 0)
+    AddAxes(s.task_residuals, "task phi", "task gamma", "rad", &e.residuals);
   for (int j = 0; j < kDiamondParameterCount; ++j) {
     const DiamondParameterEstimate& p = s.parameters[j];
     e.parameters.push_back({DiamondParameterName(j), DiamondParameterUnit(j), p.initial, p.value,
@@ -287,10 +289,10 @@ EstimationReport DiamondEstimationReport(const DiamondIdentificationSummary& s) 
 namespace {
 
 DiamondIdentificationSummary Identify(const std::vector<DiamondSample>& samples,
-                                             const vision::CameraModel& camera,
-                                             const robots::DiamondModel& initial_model,
-                                             const Eigen::Isometry3d& X_OC_initial,
-                                             const DiamondIdentificationOptions& options) {
+                                      const vision::CameraModel& camera,
+                                      const robots::DiamondModel& initial_model,
+                                      const Eigen::Isometry3d& X_OC_initial,
+                                      const DiamondIdentificationOptions& options) {
   // --- set-up checks: throw once, naming everything -----------------------------------------
   std::vector<std::string> bad;
   if (const std::string o = options.Validate(); !o.empty()) bad.push_back("options: " + o);

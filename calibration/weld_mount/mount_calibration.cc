@@ -12,6 +12,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "calibration/common/estimation.h"
 #include "calibration/weld_mount/mount_residuals_internal.h"
 #include "common/config_error.h"
 
@@ -147,71 +148,18 @@ Eigen::MatrixXd Jacobian(ceres::Problem* problem, const std::vector<double*>& bl
   return J;
 }
 
-// SVD of the column-scaled J (via the n×n R of a QR). Columns of zero norm stay zero.
-struct ScaledSvd {
-  Eigen::VectorXd column_norm;
-  Eigen::VectorXd sigma;  // descending
-  Eigen::MatrixXd V;      // scaled coordinates
-  int rank = 0;
-};
-
-ScaledSvd AnalyseColumns(const Eigen::MatrixXd& J, double tolerance) {
-  ScaledSvd a;
-  const Eigen::Index n = J.cols();
-  a.column_norm = J.colwise().norm().transpose();
-  Eigen::MatrixXd Js = J;
-  for (Eigen::Index j = 0; j < n; ++j) {
-    if (a.column_norm(j) > 0.0) Js.col(j) /= a.column_norm(j);
-  }
-  Eigen::MatrixXd R;
-  if (Js.rows() > n) {
-    Eigen::HouseholderQR<Eigen::MatrixXd> qr(Js);
-    R = qr.matrixQR().topRows(n).triangularView<Eigen::Upper>();
-  } else {
-    R = Js;
-  }
-  Eigen::JacobiSVD<Eigen::MatrixXd> svd(R, Eigen::ComputeFullV);
-  a.sigma = Eigen::VectorXd::Zero(n);
-  a.sigma.head(svd.singularValues().size()) = svd.singularValues();
-  a.V = svd.matrixV();
-  const double smax = a.sigma.size() > 0 ? a.sigma(0) : 0.0;
-  for (Eigen::Index i = 0; i < n; ++i) a.rank += a.sigma(i) > tolerance * smax ? 1 : 0;
-  return a;
-}
-
-std::string Combination(const Eigen::VectorXd& v, const std::vector<std::string>& names) {
-  std::vector<std::pair<double, int>> terms;
-  for (Eigen::Index i = 0; i < v.size(); ++i) {
-    if (std::abs(v(i)) >= 0.05) terms.emplace_back(v(i), static_cast<int>(i));
-  }
-  std::sort(terms.begin(), terms.end(),
-            [](const auto& a, const auto& b) { return std::abs(a.first) > std::abs(b.first); });
-  // The sign of a null vector is arbitrary: make the largest term positive.
-  const double sign = terms.empty() || terms.front().first > 0.0 ? 1.0 : -1.0;
-  std::ostringstream s;
-  s << std::fixed << std::setprecision(2);
-  for (size_t k = 0; k < terms.size(); ++k) {
-    const double w = sign * terms[k].first;
-    if (k == 0) {
-      s << w << " " << names[static_cast<size_t>(terms[k].second)];
-    } else {
-      s << (w < 0 ? " - " : " + ") << std::abs(w) << " "
-        << names[static_cast<size_t>(terms[k].second)];
-    }
-  }
-  return s.str();
-}
-
 ResidualStats Stats(std::vector<double> d, double k_distance) {
   ResidualStats s;
   s.count = static_cast<int>(d.size());
   if (d.empty()) return s;
-  double sum2 = 0.0;
+  double sum = 0.0, sum2 = 0.0;
   for (double x : d) {
+    sum += x;
     sum2 += x * x;
     s.max = std::max(s.max, x);
     s.beyond_k += x > k_distance ? 1 : 0;
   }
+  s.mean = sum / static_cast<double>(d.size());
   s.rms = std::sqrt(sum2 / static_cast<double>(d.size()));
   std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
   s.median = d[d.size() / 2];
@@ -384,8 +332,10 @@ robots::Weld5Model ApplyDhErrors(const robots::Weld5Model& model, const Eigen::V
   return out;
 }
 
-MountCalibrationSummary CalibrateScannerMount(const MountCalibrationData& data,
-                                              const MountCalibrationOptions& options) {
+namespace {
+
+MountCalibrationSummary Calibrate(const MountCalibrationData& data,
+                                  const MountCalibrationOptions& options) {
   const std::string bad_options = options.Validate();
   if (!bad_options.empty()) {
     throw std::invalid_argument("scanner mount calibration: options: " + bad_options);
@@ -568,50 +518,43 @@ MountCalibrationSummary CalibrateScannerMount(const MountCalibrationData& data,
     out.sigma_ratio = m > n_free ? std::sqrt(2.0 * out.final_cost / (m - n_free)) : kInf;
   }
 
-  // Identifiability of all parameters.
-  const ScaledSvd all = AnalyseColumns(J, options.rank_tolerance);
+  // Identifiability of all parameters (rank, the directions the data cannot fix), then of the
+  // estimated ones (condition, identified flags, covariance), unit-norm column scaling.
+  IdentifiabilityOptions analysis;
+  analysis.rank_tolerance = options.rank_tolerance;
+  const Identifiability all = AnalyzeIdentifiability(J, out.parameter_names, analysis);
   out.rank = all.rank;
-  out.singular_values = all.sigma;
-  for (int i = all.rank; i < n_all; ++i) {
-    out.unidentified.push_back(Combination(all.V.col(i), out.parameter_names));
-  }
+  out.singular_values = Eigen::Map<const Eigen::VectorXd>(
+      all.singular_values.data(), static_cast<Eigen::Index>(all.singular_values.size()));
+  out.unidentified = all.unidentified;
 
-  // The estimated parameters: identified flags, covariance.
   std::vector<int> est;
   for (int i = 0; i < 12; ++i) est.push_back(i);
   for (int i : free_dh) est.push_back(12 + i);
   out.estimated.assign(static_cast<size_t>(n_all), false);
   for (int i : est) out.estimated[static_cast<size_t>(i)] = true;
   Eigen::MatrixXd J_est(J.rows(), static_cast<Eigen::Index>(est.size()));
-  for (size_t k = 0; k < est.size(); ++k) J_est.col(static_cast<Eigen::Index>(k)) = J.col(est[k]);
-  const ScaledSvd e = AnalyseColumns(J_est, options.rank_tolerance);
+  std::vector<std::string> est_names;
+  for (size_t k = 0; k < est.size(); ++k) {
+    J_est.col(static_cast<Eigen::Index>(k)) = J.col(est[k]);
+    est_names.push_back(out.parameter_names[static_cast<size_t>(est[k])]);
+  }
+  const Identifiability e = AnalyzeIdentifiability(J_est, est_names, analysis);
   const Eigen::Index n_est = J_est.cols();
-  out.condition_number = e.rank > 0 ? e.sigma(0) / e.sigma(e.rank - 1) : kInf;
-  Eigen::MatrixXd cov_s = Eigen::MatrixXd::Zero(n_est, n_est);
-  for (int i = 0; i < e.rank; ++i) {
-    cov_s += e.V.col(i) * e.V.col(i).transpose() / (e.sigma(i) * e.sigma(i));
-  }
-  std::vector<bool> est_identified(static_cast<size_t>(n_est), true);
-  for (Eigen::Index j = 0; j < n_est; ++j) {
-    double null = 0.0;
-    for (Eigen::Index i = e.rank; i < n_est; ++i) null += e.V(j, i) * e.V(j, i);
-    est_identified[static_cast<size_t>(j)] = e.column_norm(j) > 0.0 && std::sqrt(null) < 0.1;
-  }
+  out.condition_number = e.condition_number_identified;
   const double s2 = std::isfinite(out.sigma_ratio) ? out.sigma_ratio * out.sigma_ratio : 1.0;
   out.covariance = Eigen::MatrixXd::Zero(n_all, n_all);
   out.identified.assign(static_cast<size_t>(n_all), false);
   out.std_dev = Eigen::VectorXd::Constant(n_all, kInf);
   for (Eigen::Index a = 0; a < n_est; ++a) {
     for (Eigen::Index b = 0; b < n_est; ++b) {
-      const double da = e.column_norm(a) > 0.0 ? 1.0 / e.column_norm(a) : 0.0;
-      const double db = e.column_norm(b) > 0.0 ? 1.0 / e.column_norm(b) : 0.0;
       out.covariance(est[static_cast<size_t>(a)], est[static_cast<size_t>(b)]) =
-          s2 * da * db * cov_s(a, b);
+          s2 * e.normal_inverse(a, b);
     }
   }
   for (Eigen::Index a = 0; a < n_est; ++a) {
     const int i = est[static_cast<size_t>(a)];
-    if (est_identified[static_cast<size_t>(a)]) {
+    if (e.identified[static_cast<size_t>(a)]) {
       out.identified[static_cast<size_t>(i)] = true;
       out.std_dev(i) = std::sqrt(out.covariance(i, i));
     } else {
@@ -696,6 +639,83 @@ MountCalibrationSummary CalibrateScannerMount(const MountCalibrationData& data,
     out.warnings.push_back(w.str());
   }
   return out;
+}
+
+}  // namespace
+
+MountCalibrationSummary CalibrateScannerMount(const MountCalibrationData& data,
+                                              const MountCalibrationOptions& options) {
+  MountCalibrationSummary summary = Calibrate(data, options);
+  summary.estimation = MountEstimationReport(summary);
+  return summary;
+}
+
+EstimationReport MountEstimationReport(const MountCalibrationSummary& s) {
+  EstimationReport e;
+  e.estimator = "scanner mount X_5C (with the block pose and D-H errors)";
+  const size_t n = s.parameter_names.size();
+  bool all_identified = true;
+  for (size_t i = 0; i < n; ++i) {
+    const std::string& name = s.parameter_names[i];
+    ParameterEstimate p;
+    p.name = name;
+    // rx, ry, rz and the D–H angles alpha, theta are rad; x, y, z, a and d are m.
+    const bool angle = name.find(".r") != std::string::npos || name.rfind("alpha", 0) == 0 ||
+                       name.rfind("theta", 0) == 0;
+    p.unit = angle ? "rad" : "m";
+    p.initial = 0.0;  // corrections from the nominal (tangent at the nominal)
+    p.value = i < static_cast<size_t>(s.correction.size())
+                  ? s.correction(static_cast<Eigen::Index>(i))
+                  : 0.0;
+    p.estimated = i < s.estimated.size() && s.estimated[i];
+    p.identified = i < s.identified.size() && s.identified[i];
+    p.sigma = !p.estimated   ? 0.0
+              : p.identified ? s.std_dev(static_cast<Eigen::Index>(i))
+                             : std::numeric_limits<double>::infinity();
+    all_identified = all_identified && (!p.estimated || p.identified);
+    e.parameters.push_back(p);
+  }
+  switch (s.status) {
+    case MountCalibrationStatus::kOk:
+      e.status = all_identified ? EstimationStatus::kConverged : EstimationStatus::kUnidentified;
+      break;
+    case MountCalibrationStatus::kUnidentified:
+      e.status = EstimationStatus::kUnidentified;
+      break;
+    case MountCalibrationStatus::kNotConverged:
+      e.status = EstimationStatus::kNotConverged;
+      break;
+  }
+  e.message = ToString(s.status);
+  e.iterations = s.iterations;
+  e.initial_cost = s.initial_cost;
+  e.final_cost = s.final_cost;
+  e.variance_factor = s.sigma_ratio * s.sigma_ratio;
+  for (const auto& [name, r] :
+       {std::pair{"touch distance", &s.touch}, std::pair{"scan distance", &s.scan}}) {
+    e.residuals.push_back({name, "m", r->count, r->mean, r->rms, r->max});
+  }
+  if (s.covariance.rows() == static_cast<Eigen::Index>(n)) {
+    e.covariance = s.covariance;
+    for (size_t i = 0; i < n; ++i) {
+      if (e.parameters[i].estimated && !e.parameters[i].identified) {
+        e.covariance(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(i)) =
+            std::numeric_limits<double>::infinity();
+      }
+    }
+  }
+  Identifiability& id = e.identifiability;
+  id.parameters = static_cast<int>(n);
+  id.rank = s.rank;
+  id.condition_number =
+      s.rank == static_cast<int>(n) ? s.condition_number : std::numeric_limits<double>::infinity();
+  id.condition_number_identified = s.condition_number;
+  id.singular_values.assign(s.singular_values.data(),
+                            s.singular_values.data() + s.singular_values.size());
+  id.unidentified = s.unidentified;
+  for (const std::string& d : s.fixed_dh) id.gauges.push_back(d + " held at nominal");
+  e.warnings = s.warnings;
+  return e;
 }
 
 }  // namespace kinevis::calibration

@@ -31,6 +31,7 @@
 #include <string>
 #include <vector>
 
+#include "calibration/common/estimation.h"
 #include "robots/weld5/weld5_model.h"
 
 namespace kinevis::calibration {
@@ -135,6 +136,7 @@ const char* ToString(MountCalibrationStatus status);  // "ok", "unidentified", "
 
 struct ResidualStats {
   int count = 0;        // residuals (touches) or points (scans)
+  double mean = 0.0;    // of the distances (m)
   double rms = 0.0;     // of the distances (m)
   double median = 0.0;  // of the absolute distances (m)
   double max = 0.0;     // (m)
@@ -178,7 +180,7 @@ struct MountCalibrationSummary {
   // Identifiability: SVD of the column-scaled Jacobian (unit columns) of all parameters at the
   // solution, all 20 D–H errors included when estimate_dh: its rank, singular values
   // (descending), and each unidentified direction (relative singular value below
-  // rank_tolerance) written as a combination of the parameters ("0.71 mount.x - 0.71 block.x",
+  // rank_tolerance) written as a combination of the parameters ("0.707 mount.x - 0.707 block.x",
   // scaled units). condition_number: σ_max/σ_min of the identified part of the ESTIMATED
   // parameters' scaled Jacobian.
   int rank = 0;
@@ -188,6 +190,10 @@ struct MountCalibrationSummary {
   std::vector<std::string> fixed_dh;  // D–H parameters held at nominal (not identifiable)
 
   std::vector<std::string> warnings;
+  // The same in the estimator contract's shape: parameter values are the corrections above
+  // (initial 0), σ from std_dev (0 for held D–H errors); status converged only when every
+  // estimated parameter, the block's included, is identified (kOk needs only the mount).
+  EstimationReport estimation;
   bool ok() const { return status == MountCalibrationStatus::kOk; }
 };
 
@@ -196,6 +202,10 @@ struct MountCalibrationSummary {
 // else (too few or degenerate data, no convergence) is reported in the summary.
 MountCalibrationSummary CalibrateScannerMount(const MountCalibrationData& data,
                                               const MountCalibrationOptions& options = {});
+
+// The estimator contract's report of a summary (what CalibrateScannerMount puts in `estimation`;
+// the file reader uses it for files written before the contract).
+EstimationReport MountEstimationReport(const MountCalibrationSummary& summary);
 
 // Names of the 20 D–H error parameters in summary order ("a1", "alpha1", "d1", "theta1", ...).
 std::vector<std::string> DhErrorNames();

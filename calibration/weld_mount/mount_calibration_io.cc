@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "calibration/common/estimation_yaml_internal.h"
 #include "calibration/common/yaml_reader_internal.h"
 #include "common/units.h"
 
@@ -16,7 +17,9 @@ namespace kinevis::calibration {
 namespace {
 
 constexpr const char* kKind = "kinevis-scanner-mount-calibration";
-constexpr int kVersion = 1;
+// 2: the estimator contract's `estimation:` block; version 1 files (without it) are read, their
+// report derived from what they hold.
+constexpr int kVersion = 2;
 constexpr int kPoseParameters = 12;  // mount (6) + block (6)
 constexpr int kDhParameters = 20;
 const char* const kPoseNames[kPoseParameters] = {"mount.rx", "mount.ry", "mount.rz", "mount.x",
@@ -304,6 +307,7 @@ void WriteScannerMountCalibration(const std::string& path, const MountCalibratio
   EmitStats(out, "scan", s.scan);
   out << YAML::EndMap;
   EmitStrings(out, "warnings", s.warnings);
+  internal::EmitEstimation(out, s.estimation);
   out << YAML::EndMap;
 
   std::ofstream file(path);
@@ -339,8 +343,8 @@ ScannerMountCalibrationFile ReadScannerMountCalibration(const std::string& path)
   if (root["kind"] && kind != kKind)
     in.Bad("kind", "must be " + std::string(kKind) + " (" + kind + ")");
   const int version = in.Int(root, "version", "version", 1);
-  if (root["version"] && version != kVersion) {
-    in.Bad("version", "unsupported (" + std::to_string(version) + ", this reader knows 1)");
+  if (root["version"] && (version < 1 || version > kVersion)) {
+    in.Bad("version", "unsupported (" + std::to_string(version) + ", this reader knows 1 and 2)");
   }
   m.created = in.String(root, "created", "created");
   m.source = in.String(root, "source", "source");
@@ -530,7 +534,9 @@ ScannerMountCalibrationFile ReadScannerMountCalibration(const std::string& path)
       !s.converged) {
     in.Bad("status", "ok although converged is false");
   }
+  if (version >= 2) s.estimation = internal::ReadEstimation(in, root);
   in.ThrowIfBad();
+  if (version < 2) s.estimation = MountEstimationReport(s);
   return f;
 }
 

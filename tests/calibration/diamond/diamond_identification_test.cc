@@ -184,7 +184,8 @@ TEST(DiamondIdentificationTest, ReportsTheScaleAndAzimuthGauges) {
     EXPECT_EQ(s.estimation.status, EstimationStatus::kUnidentified);
     EXPECT_EQ(s.estimation.Validate(), "");
     EXPECT_TRUE(std::isinf(s.estimation.Find("radius")->sigma));
-    EXPECT_THAT(s.estimation.BriefReport(), HasSubstr("unidentified, 8 of 10 estimated parameters identified (rank 9)"));
+    EXPECT_THAT(s.estimation.BriefReport(),
+                HasSubstr("unidentified, 8 of 10 estimated parameters identified (rank 9)"));
   }
   {
     DiamondIdentificationOptions o;

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <regex>
 #include <sstream>
@@ -146,6 +147,15 @@ void ExpectSameSummary(const MountCalibrationSummary& a, const MountCalibrationS
   EXPECT_EQ(a.scan.count, b.scan.count);
   EXPECT_NEAR(a.scan.rms, b.scan.rms, 1e-15);
   EXPECT_EQ(a.scan.beyond_k, b.scan.beyond_k);
+  EXPECT_EQ(a.estimation.status, b.estimation.status);
+  ASSERT_EQ(a.estimation.parameters.size(), b.estimation.parameters.size());
+  for (size_t i = 0; i < a.estimation.parameters.size(); ++i) {
+    EXPECT_EQ(a.estimation.parameters[i].name, b.estimation.parameters[i].name);
+    EXPECT_EQ(a.estimation.parameters[i].sigma, b.estimation.parameters[i].sigma);  // inf too
+    EXPECT_EQ(a.estimation.parameters[i].value, b.estimation.parameters[i].value);
+  }
+  EXPECT_EQ(a.estimation.covariance, b.estimation.covariance);
+  EXPECT_EQ(a.estimation.identifiability.unidentified, b.estimation.identifiability.unidentified);
 }
 
 TEST(MountCalibrationIoTest, RoundTripsAMountOnlyCalibration) {
@@ -233,6 +243,31 @@ TEST(MountCalibrationIoTest, RoundTripsAnUnidentifiedCalibrationWithInfiniteSigm
   }
 }
 
+// A file from before the estimator contract (version 1, no estimation: block) still reads, with
+// the report derived from what it holds.
+TEST(MountCalibrationIoTest, ReadsVersionOneFilesWithoutTheEstimationBlock) {
+  const Solved& s = Cached(/*dh=*/false);
+  const std::string path = TempFile("version1.yaml");
+  WriteScannerMountCalibration(path, s.summary, Metadata(s.sim));
+  std::string text;
+  {
+    std::ifstream in(path);
+    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  const size_t block = text.find("\nestimation:");
+  ASSERT_NE(block, std::string::npos);
+  text.erase(block + 1);
+  const size_t version = text.find("version: 2");
+  ASSERT_NE(version, std::string::npos);
+  text.replace(version, 10, "version: 1");
+  std::ofstream(path) << text;
+  const ScannerMountCalibrationFile f = ReadScannerMountCalibration(path);
+  EXPECT_EQ(f.summary.estimation.status, s.summary.estimation.status);
+  EXPECT_EQ(f.summary.estimation.Validate(), "");
+  EXPECT_EQ(f.summary.estimation.Find("mount.y")->sigma,
+            s.summary.estimation.Find("mount.y")->sigma);
+}
+
 TEST(MountCalibrationIoTest, NamesEveryBadKeyInOneMessage) {
   const Solved& s = Cached(/*dh=*/false);
   const std::string path = TempFile("bad.yaml");
@@ -274,14 +309,14 @@ TEST(MountCalibrationIoTest, RefusesRpyThatDisagreesWithTheQuaternion) {
 
 TEST(MountCalibrationIoTest, RefusesAnotherKindMissingKeysAndAMissingFile) {
   const std::string path = TempFile("other.yaml");
-  WriteText(path, "kind: kinevis-laser-scanner-calibration\nversion: 2\n");
+  WriteText(path, "kind: kinevis-laser-scanner-calibration\nversion: 9\n");
   try {
     ReadScannerMountCalibration(path);
     FAIL();
   } catch (const std::invalid_argument& e) {
     const std::string what = e.what();
     EXPECT_THAT(what, HasSubstr("kind: must be kinevis-scanner-mount-calibration"));
-    EXPECT_THAT(what, HasSubstr("version: unsupported (2"));
+    EXPECT_THAT(what, HasSubstr("version: unsupported (9"));
     EXPECT_THAT(what, HasSubstr("mount: missing"));
     EXPECT_THAT(what, HasSubstr("status: missing"));
   }

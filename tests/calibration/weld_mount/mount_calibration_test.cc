@@ -50,6 +50,17 @@ TEST(MountCalibration, RecoversTheMountFromNoisyScansAndTouches) {
   EXPECT_TRUE(r.converged);
   EXPECT_EQ(r.rank, 12);
   EXPECT_TRUE(r.unidentified.empty());
+  // The estimator contract: named parameters in SI units, σ as std_dev.
+  EXPECT_EQ(r.estimation.Validate(), "");
+  EXPECT_EQ(r.estimation.status, EstimationStatus::kConverged);
+  ASSERT_EQ(r.estimation.parameters.size(), 12u);
+  ASSERT_NE(r.estimation.Find("mount.x"), nullptr);
+  EXPECT_EQ(r.estimation.Find("mount.x")->unit, "m");
+  EXPECT_EQ(r.estimation.Find("mount.rz")->unit, "rad");
+  EXPECT_DOUBLE_EQ(r.estimation.Find("mount.x")->sigma, r.std_dev(3));
+  EXPECT_EQ(r.estimation.identifiability.rank, 12);
+  ASSERT_EQ(r.estimation.residuals.size(), 2u);
+  EXPECT_EQ(r.estimation.residuals[1].count, r.scan.count);
   // Measured (seeds 7, 8, 9): 0.03-0.05 mm and 0.02-0.03° off, reported std 0.035 mm / 0.024°;
   // the guess was 1.15 mm / 0.86° off. Bounds with a 4x margin.
   EXPECT_LT(DistanceBetween(r.X_5C, s.X_5C_true), 0.2e-3);
@@ -131,6 +142,9 @@ TEST(MountCalibration, AllScansFromOnePoseAreReportedUnidentified) {
   Print("one pose, top and board touches", t, u);
   EXPECT_EQ(u.status, MountCalibrationStatus::kUnidentified);
   EXPECT_LT(u.rank, r.rank);
+  EXPECT_EQ(u.estimation.status, EstimationStatus::kUnidentified);
+  EXPECT_EQ(u.estimation.Validate(), "");
+  EXPECT_EQ(u.estimation.identifiability.unidentified, u.unidentified);
   bool mixed = false;
   for (const std::string& c : u.unidentified) {
     mixed =
