@@ -51,7 +51,10 @@ struct PlaneFit {
   Eigen::Matrix2d covariance = Eigen::Matrix2d::Zero();  // (c, b')
   double condition = std::numeric_limits<double>::infinity();
   double rms = std::nan(""), max = std::nan("");  // distance from the plane (m)
+  double mean = std::nan("");                     // signed distance (m)
   std::vector<char> inlier;
+  Eigen::MatrixXd jacobian;  // of the algebraic residuals of the inliers in (c, b')
+  double sigma2 = 0.0;       // their variance
   int inliers = 0;
 };
 
@@ -104,20 +107,123 @@ PlaneFit FitPlane(const std::vector<StripePoint>& points, int axis,
     if (changed == 0) break;
     if (!solve()) return fit;
   }
-  double ssr = 0.0;
+  double ssr = 0.0, sum = 0.0;
   fit.max = 0.0;
   for (int i = 0; i < n; ++i) {
     if (!fit.inlier[i]) continue;
+    sum += residual[i];
     ssr += residual[i] * residual[i];
     fit.max = std::max(fit.max, std::abs(residual[i]));
   }
   fit.rms = std::sqrt(ssr / fit.inliers);
+  fit.mean = sum / fit.inliers;
   // σ² of the algebraic residual (distance · |(1, c)|) times (AᵀA)⁻¹.
   const double scale2 = 1.0 + fit.c * fit.c;
   const double sigma2 = fit.inliers > 2 ? ssr * scale2 / (fit.inliers - 2) : 0.0;
   fit.covariance = sigma2 * (A.transpose() * A).inverse();
+  fit.jacobian = A;
+  fit.sigma2 = sigma2;
   fit.ok = true;
   return fit;
+}
+
+// The estimator contract's report. The parameters are the two lasers' (b_y, d_y, b_x', cot θ_x)
+// and each stepper position's cot θ_y; one AnalyzeIdentifiability over the block-diagonal
+// Jacobian of both solves (a plane that was not calibrated contributes zero columns).
+EstimationReport LaserScannerEstimation(const LaserScannerCalibration& out,
+                                        const LaserScannerCalibrationOptions& options,
+                                        const Eigen::MatrixXd& rotating_jacobian,
+                                        const std::vector<std::string>& rotating_names,
+                                        double rotating_mean, const PlaneFit& fixed) {
+  EstimationReport e;
+  e.estimator = "laser scanner planes (seed 004)";
+  const bool rotating = out.rotating_calibrated && rotating_jacobian.size() > 0;
+  const bool fixed_ok = out.fixed_calibrated && fixed.sigma2 > 0.0;
+  std::vector<std::string> names =
+      rotating ? rotating_names : std::vector<std::string>{"b_y", "d_y"};
+  const Eigen::Index n_rot = static_cast<Eigen::Index>(names.size());
+  names.push_back("b_x_prime");
+  names.push_back("cot_theta_x");
+  const Eigen::Index n = static_cast<Eigen::Index>(names.size());
+  const Eigen::Index rows_rot = rotating ? rotating_jacobian.rows() : 0;
+  const Eigen::Index rows_fix = fixed_ok ? fixed.jacobian.rows() : 0;
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(std::max<Eigen::Index>(1, rows_rot + rows_fix), n);
+  if (rotating) J.topLeftCorner(rows_rot, n_rot) = rotating_jacobian;
+  if (fixed_ok) {
+    // The fit's columns are (c, b'); the contract's order is (b', c).
+    const double w = 1.0 / std::sqrt(fixed.sigma2);
+    J.block(rows_rot, n_rot, rows_fix, 1) = w * fixed.jacobian.col(1);
+    J.block(rows_rot, n_rot + 1, rows_fix, 1) = w * fixed.jacobian.col(0);
+  }
+  IdentifiabilityOptions analysis;
+  e.identifiability = AnalyzeIdentifiability(J, names, analysis);
+  const Identifiability& id = e.identifiability;
+
+  std::vector<double> values(static_cast<size_t>(n), std::nan(""));
+  values[0] = out.geometry.rotating_b_y;
+  values[1] = out.geometry.rotating_d_y;
+  if (rotating) {
+    Eigen::Index k = 2;
+    for (const RotatingPositionEstimate& p : out.positions) {
+      if (p.estimated && k < n_rot) values[static_cast<size_t>(k++)] = p.cot_theta_y;
+    }
+  }
+  values[static_cast<size_t>(n_rot)] = out.geometry.fixed_b_x_prime;
+  values[static_cast<size_t>(n_rot + 1)] = out.geometry.fixed_cot_theta_x;
+  e.covariance = Eigen::MatrixXd::Zero(n, n);
+  bool all_identified = true;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    ParameterEstimate p;
+    p.name = names[static_cast<size_t>(i)];
+    p.unit = p.name.rfind("cot", 0) == 0 ? "1" : "m";
+    p.value = values[static_cast<size_t>(i)];
+    p.estimated = true;
+    p.identified = id.identified[static_cast<size_t>(i)];
+    p.sigma = p.identified ? std::sqrt(std::max(0.0, id.normal_inverse(i, i)))
+                           : std::numeric_limits<double>::infinity();
+    all_identified = all_identified && p.identified;
+    e.parameters.push_back(p);
+  }
+  for (Eigen::Index a = 0; a < n; ++a) {
+    for (Eigen::Index b = 0; b < n; ++b) {
+      e.covariance(a, b) =
+          id.identified[static_cast<size_t>(a)] && id.identified[static_cast<size_t>(b)]
+              ? id.normal_inverse(a, b)
+              : (a == b ? std::numeric_limits<double>::infinity() : 0.0);
+    }
+  }
+  e.iterations = out.iterations;
+  const bool diverged = std::any_of(out.errors.begin(), out.errors.end(), [](const std::string& m) {
+    return m.find("diverged") != std::string::npos;
+  });
+  if (diverged) {
+    e.status = EstimationStatus::kFailed;
+  } else if (!out.rotating_calibrated && !out.fixed_calibrated) {
+    e.status = EstimationStatus::kInsufficientData;
+  } else if (!all_identified || !out.errors.empty()) {
+    e.status = EstimationStatus::kUnidentified;
+  } else if (options.refine && !out.converged) {
+    e.status = EstimationStatus::kNotConverged;
+  } else {
+    e.status = EstimationStatus::kConverged;
+  }
+  for (const std::string& m : out.errors) e.message += (e.message.empty() ? "" : "; ") + m;
+  if (e.message.empty()) {
+    e.message = options.refine ? (out.converged ? "joint refinement converged"
+                                                : "joint refinement did not converge")
+                               : "linear solution (no refinement)";
+  }
+  e.variance_factor = 1.0;  // each plane's σ is estimated from its own residuals
+  if (out.rotating_points > 0) {
+    e.residuals.push_back({"rotating plane distance", "m", out.rotating_points, rotating_mean,
+                           out.rotating_residual_rms, out.rotating_residual_max});
+  }
+  if (out.fixed_points > 0) {
+    e.residuals.push_back({"fixed plane distance", "m", out.fixed_points, fixed.mean,
+                           out.fixed_residual_rms, out.fixed_residual_max});
+  }
+  e.warnings = out.warnings;
+  return e;
 }
 
 }  // namespace
@@ -306,6 +412,12 @@ LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibration
     if (out.positions[k].estimated) estimated.push_back(static_cast<int>(k));
   }
   const int N = static_cast<int>(estimated.size());
+  // For the estimator contract: the Jacobians of both solves, each row divided by its residual σ
+  // (so that the contract's (JᵀJ)⁻¹ is the covariance), the signed mean distances and names.
+  Eigen::MatrixXd rotating_jacobian;
+  std::vector<std::string> rotating_names;
+  double rotating_mean = std::nan("");
+  PlaneFit fixed_fit;
 
   // Eq. 31–32: b_y and d_y from the positions.
   if (rotating.empty()) {
@@ -385,7 +497,7 @@ LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibration
                                  "): the values are the last iterate");
         }
       }
-      double ssr = 0.0;
+      double ssr = 0.0, signed_sum = 0.0;
       for (int k = 0, row = 0; k < N; ++k) {
         RotatingPositionEstimate& position = out.positions[estimated[k]];
         const double scale = std::sqrt(1.0 + c(k) * c(k));
@@ -393,6 +505,7 @@ LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibration
         for (char keep : used_inliers[k]) {
           if (!keep) continue;
           const double distance = r(row++) / scale;
+          signed_sum += distance;
           position_ssr += distance * distance;
           out.rotating_residual_max = std::isnan(out.rotating_residual_max)
                                           ? std::abs(distance)
@@ -406,6 +519,14 @@ LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibration
       const double sigma2 = rows > unknowns ? r.squaredNorm() / (rows - unknowns) : 0.0;
       const Eigen::MatrixXd covariance = sigma2 * (J.transpose() * J).inverse();
       out.rotating_covariance = covariance.topLeftCorner<2, 2>();
+      rotating_mean = signed_sum / rows;
+      if (sigma2 > 0.0 && J.allFinite()) {
+        rotating_jacobian = J / std::sqrt(sigma2);
+        rotating_names = {"b_y", "d_y"};
+        for (int k = 0; k < N; ++k) {
+          rotating_names.push_back("cot_theta_y." + std::to_string(estimated[k]));
+        }
+      }
       for (int k = 0; k < N; ++k) {
         RotatingPositionEstimate& position = out.positions[estimated[k]];
         position.cot_theta_y = c(k);
@@ -450,7 +571,8 @@ LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibration
     out.errors.push_back("fixed laser: " + std::to_string(fixed.size()) + " stripe points (need " +
                          std::to_string(options.min_fixed_points) + ")");
   } else {
-    const PlaneFit fit = FitPlane(fixed, 0, options);
+    fixed_fit = FitPlane(fixed, 0, options);
+    const PlaneFit& fit = fixed_fit;
     out.fixed_depth_condition = fit.condition;
     if (!fit.ok) {
       out.errors.push_back("fixed laser: its stripe points do not span depth (condition number " +
@@ -479,6 +601,8 @@ LaserScannerCalibration CalibrateLaserScanner(const std::vector<LaserCalibration
       }
     }
   }
+  out.estimation = LaserScannerEstimation(out, options, rotating_jacobian, rotating_names,
+                                          rotating_mean, fixed_fit);
   return out;
 }
 

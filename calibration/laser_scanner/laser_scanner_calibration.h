@@ -39,6 +39,7 @@
 #include <string>
 #include <vector>
 
+#include "calibration/common/estimation.h"
 #include "vision/camera/camera_model.h"
 #include "vision/laser/scanner_model.h"
 
@@ -143,6 +144,10 @@ struct LaserScannerCalibration {
 
   std::vector<std::string> errors;    // what could not be calibrated and why
   std::vector<std::string> warnings;  // weakly identified parameters, outliers, unusable pixels
+  // The estimator contract's report: b_y, d_y, cot θ_y per stepper position, b_x', cot θ_x with
+  // σ from one identifiability analysis of both solves; unidentified when one laser failed.
+  // Position parameters are named "cot_theta_y.K", K the index into `positions`.
+  EstimationReport estimation;
   bool ok() const { return errors.empty(); }
 };
 

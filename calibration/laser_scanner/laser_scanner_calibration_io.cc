@@ -2,11 +2,14 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <ctime>
 #include <fstream>
+#include <limits>
 #include <stdexcept>
 
+#include "calibration/common/estimation_yaml_internal.h"
 #include "calibration/common/yaml_reader_internal.h"
 #include "common/units.h"
 
@@ -14,13 +17,67 @@ namespace kinevis::calibration {
 namespace {
 
 constexpr const char* kKind = "kinevis-laser-scanner-calibration";
-constexpr int kVersion = 1;
+// 2: the estimator contract's `estimation:` block; version 1 files (without it) are read, their
+// report rebuilt from the planes' values and covariances.
+constexpr int kVersion = 2;
 
 using internal::NowUtc;
 
 double Correlation(const Eigen::Matrix2d& c) {
   const double d = std::sqrt(c(0, 0) * c(1, 1));
   return d > 0.0 ? c(0, 1) / d : 0.0;
+}
+
+// A version 1 file's report: the four plane parameters with their covariances (the per-position
+// cot θ_y and the identifiability analysis were not stored).
+EstimationReport VersionOneEstimation(const LaserScannerCalibration& r) {
+  EstimationReport e;
+  e.estimator = "laser scanner planes (seed 004)";
+  e.message = "read from a version 1 file (before the estimator contract)";
+  e.iterations = r.iterations;
+  const struct {
+    const char* name;
+    const char* unit;
+    double value;
+    bool calibrated;
+  } rows[] = {{"b_y", "m", r.geometry.rotating_b_y, r.rotating_calibrated},
+              {"d_y", "m", r.geometry.rotating_d_y, r.rotating_calibrated},
+              {"b_x_prime", "m", r.geometry.fixed_b_x_prime, r.fixed_calibrated},
+              {"cot_theta_x", "1", r.geometry.fixed_cot_theta_x, r.fixed_calibrated}};
+  e.covariance = Eigen::Matrix4d::Zero();
+  e.covariance.topLeftCorner<2, 2>() = r.rotating_covariance;
+  e.covariance.bottomRightCorner<2, 2>() = r.fixed_covariance;
+  int identified = 0;
+  for (int i = 0; i < 4; ++i) {
+    ParameterEstimate p;
+    p.name = rows[i].name;
+    p.unit = rows[i].unit;
+    p.value = rows[i].value;
+    p.estimated = true;
+    p.identified = rows[i].calibrated;
+    p.sigma = p.identified ? std::sqrt(std::max(0.0, e.covariance(i, i)))
+                           : std::numeric_limits<double>::infinity();
+    if (!p.identified) e.covariance(i, i) = std::numeric_limits<double>::infinity();
+    identified += p.identified ? 1 : 0;
+    e.parameters.push_back(p);
+  }
+  e.identifiability.parameters = 4;
+  e.identifiability.rank = identified;
+  e.status = identified == 4   ? EstimationStatus::kConverged
+             : identified == 0 ? EstimationStatus::kInsufficientData
+                               : EstimationStatus::kUnidentified;
+  if (r.rotating_points > 0) {
+    e.residuals.push_back({"rotating plane distance", "m", r.rotating_points,
+                           std::numeric_limits<double>::quiet_NaN(), r.rotating_residual_rms,
+                           r.rotating_residual_max});
+  }
+  if (r.fixed_points > 0) {
+    e.residuals.push_back({"fixed plane distance", "m", r.fixed_points,
+                           std::numeric_limits<double>::quiet_NaN(), r.fixed_residual_rms,
+                           r.fixed_residual_max});
+  }
+  e.warnings = r.warnings;
+  return e;
 }
 
 class Reader : public internal::CheckedYamlReader {
@@ -109,6 +166,7 @@ void WriteLaserScannerCalibration(const std::string& path, const LaserScannerCal
   out << YAML::Key << "warnings" << YAML::Value << YAML::BeginSeq;
   for (const std::string& w : r.warnings) out << w;
   out << YAML::EndSeq;
+  internal::EmitEstimation(out, r.estimation);
   out << YAML::EndMap;
 
   std::ofstream file(path);
@@ -134,8 +192,8 @@ LaserScannerCalibrationFile ReadLaserScannerCalibration(const std::string& path)
   if (root["kind"] && kind != kKind)
     in.Bad("kind", "must be " + std::string(kKind) + " (" + kind + ")");
   const int version = in.Int(root, "version", "version", 1);
-  if (root["version"] && version != kVersion) {
-    in.Bad("version", "unsupported (" + std::to_string(version) + ", this reader knows 1)");
+  if (root["version"] && (version < 1 || version > kVersion)) {
+    in.Bad("version", "unsupported (" + std::to_string(version) + ", this reader knows 1 and 2)");
   }
   file.metadata.camera = in.String(root, "camera", "camera");
   if (root["camera"] && file.metadata.camera.empty()) in.Bad("camera", "must not be empty");
@@ -232,7 +290,9 @@ LaserScannerCalibrationFile ReadLaserScannerCalibration(const std::string& path)
   if (r.rotating_calibrated && r.geometry.Validate() != "" && r.fixed_calibrated) {
     in.Bad("geometry", r.geometry.Validate());
   }
+  if (version >= 2) r.estimation = internal::ReadEstimation(in, root);
   in.ThrowIfBad();
+  if (version < 2) r.estimation = VersionOneEstimation(r);
   return file;
 }
 

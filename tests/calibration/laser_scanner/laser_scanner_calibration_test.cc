@@ -191,6 +191,24 @@ TEST(LaserScannerCalibration, ConvergedSaysWhetherTheRefinementMetItsTolerance) 
   ASSERT_TRUE(full.ok());
   EXPECT_TRUE(full.converged);
   EXPECT_LT(full.iterations, LaserScannerCalibrationOptions().max_iterations);
+  // The contract's σ come from one identifiability analysis of both solves' Jacobians; they
+  // agree with each plane's own (JᵀJ)⁻¹.
+  const EstimationReport& e = full.estimation;
+  EXPECT_EQ(e.Validate(), "");
+  EXPECT_EQ(e.status, EstimationStatus::kConverged);
+  EXPECT_EQ(e.parameters.size(), 4 + full.positions.size());
+  EXPECT_NEAR(e.Find("b_y")->sigma, full.b_y_sigma(), 1e-6 * full.b_y_sigma());
+  EXPECT_NEAR(e.Find("d_y")->sigma, full.d_y_sigma(), 1e-6 * full.d_y_sigma());
+  EXPECT_NEAR(e.Find("b_x_prime")->sigma, full.b_x_prime_sigma(), 1e-6 * full.b_x_prime_sigma());
+  EXPECT_NEAR(e.Find("cot_theta_x")->sigma, full.cot_theta_x_sigma(),
+              1e-6 * full.cot_theta_x_sigma());
+  EXPECT_NEAR(e.Find("cot_theta_y.0")->sigma, full.positions[0].cot_theta_y_sigma,
+              1e-6 * full.positions[0].cot_theta_y_sigma);
+  EXPECT_DOUBLE_EQ(e.Find("b_y")->value, full.geometry.rotating_b_y);
+  EXPECT_EQ(e.Find("cot_theta_x")->unit, "1");
+  EXPECT_EQ(e.identifiability.rank, static_cast<int>(e.parameters.size()));
+  ASSERT_EQ(e.residuals.size(), 2u);
+  EXPECT_DOUBLE_EQ(e.residuals[0].rms, full.rotating_residual_rms);
 
   LaserScannerCalibrationOptions one_step;
   one_step.max_iterations = 1;
@@ -199,6 +217,7 @@ TEST(LaserScannerCalibration, ConvergedSaysWhetherTheRefinementMetItsTolerance) 
   EXPECT_TRUE(cut.ok());
   EXPECT_FALSE(cut.converged);
   EXPECT_EQ(cut.iterations, 1);
+  EXPECT_EQ(cut.estimation.status, EstimationStatus::kNotConverged);
   EXPECT_THAT(cut.warnings, ::testing::Contains(::testing::HasSubstr(
                                 "joint refinement did not converge in 1 iteration")));
 
@@ -208,6 +227,8 @@ TEST(LaserScannerCalibration, ConvergedSaysWhetherTheRefinementMetItsTolerance) 
   EXPECT_TRUE(raw.ok());
   EXPECT_FALSE(raw.converged);
   EXPECT_EQ(raw.iterations, 0);
+  EXPECT_EQ(raw.estimation.status, EstimationStatus::kConverged);
+  EXPECT_EQ(raw.estimation.message, "linear solution (no refinement)");
 }
 
 TEST(LaserScannerCalibration, OnePositionCannotSeparateBFromD) {
@@ -227,6 +248,13 @@ TEST(LaserScannerCalibration, OnePositionCannotSeparateBFromD) {
   EXPECT_TRUE(c.positions[0].estimated);
   EXPECT_NEAR(c.positions[0].cot_theta_y, Stepper{}.Cot(80), 1e-9);
   EXPECT_FALSE(c.stepper.fitted);
+  // In the contract: the fixed laser identified, the rotating one not.
+  EXPECT_EQ(c.estimation.status, EstimationStatus::kUnidentified);
+  EXPECT_EQ(c.estimation.Validate(), "");
+  EXPECT_FALSE(c.estimation.Find("b_y")->identified);
+  EXPECT_TRUE(std::isinf(c.estimation.Find("d_y")->sigma));
+  EXPECT_TRUE(c.estimation.Find("b_x_prime")->identified);
+  EXPECT_THAT(c.estimation.message, ::testing::HasSubstr("rotating laser: 1 estimated"));
 }
 
 TEST(LaserScannerCalibration, PositionsAtAlmostOneAngleAreWarnedAboutOrRefused) {

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <random>
 #include <string>
 #include <vector>
@@ -138,6 +139,30 @@ TEST(LaserScannerDataset, RecordedDatasetCalibratesAndTheResultFileRoundTrips) {
   EXPECT_NEAR(back.result.positions[2].cot_theta_y, c.calibration.positions[2].cot_theta_y, 1e-11);
   EXPECT_NEAR(back.result.stepper.theta_per_step, c.calibration.stepper.theta_per_step, 1e-13);
   EXPECT_EQ(back.result.warnings, c.calibration.warnings);
+  // The estimator contract's block reads back too.
+  EXPECT_EQ(back.result.estimation.status, c.calibration.estimation.status);
+  EXPECT_EQ(back.result.estimation.parameters.size(), c.calibration.estimation.parameters.size());
+  EXPECT_NEAR(back.result.estimation.Find("d_y")->sigma,
+              c.calibration.estimation.Find("d_y")->sigma, 1e-6 * c.calibration.d_y_sigma());
+
+  // A version 1 file (before the contract) reads, its report rebuilt from the planes.
+  std::string text;
+  {
+    std::ifstream in(yaml);
+    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  const size_t block = text.find("\nestimation:");
+  ASSERT_NE(block, std::string::npos);
+  text.erase(block + 1);
+  const size_t version = text.find("version: 2");
+  ASSERT_NE(version, std::string::npos);
+  text.replace(version, 10, "version: 1");
+  std::ofstream(yaml) << text;
+  const LaserScannerCalibrationFile old = ReadLaserScannerCalibration(yaml);
+  EXPECT_EQ(old.result.estimation.Validate(), "");
+  EXPECT_EQ(old.result.estimation.status, EstimationStatus::kConverged);
+  EXPECT_NEAR(old.result.estimation.Find("b_y")->sigma, c.calibration.b_y_sigma(),
+              1e-6 * c.calibration.b_y_sigma());
   fs::remove_all(dir);
 }
 
