@@ -2,24 +2,65 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <ctime>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
+#include "calibration/common/estimation_yaml_internal.h"
 #include "calibration/common/yaml_reader_internal.h"
 
 namespace kinevis::calibration {
 namespace {
 
 constexpr const char* kKind = "kinevis-hexapod-calibration";
-constexpr int kVersion = 1;
+// 2: the estimator contract's `estimation:` block; version 1 files (without it) are read, their
+// report rebuilt from the legs.
+constexpr int kVersion = 2;
 
 using internal::NowUtc;
 
 void EmitVector(YAML::Emitter& out, const Eigen::Vector3d& v) {
   out << YAML::Flow << YAML::BeginSeq << v.x() << v.y() << v.z() << YAML::EndSeq;
+}
+
+// A version 1 file's report: the legs' p_C_A with their covariances (block-diagonal); the
+// residual summary and the identifiability analysis were not stored.
+EstimationReport VersionOneEstimation(const HexapodCalibrationResult& r) {
+  EstimationReport e;
+  e.estimator = "hexapod legs A_j (seed 002 eq. 14)";
+  e.message = "read from a version 1 file (before the estimator contract)";
+  constexpr int n = 3 * robots::kHexapodLegs;
+  e.covariance = Eigen::MatrixXd::Zero(n, n);
+  int identified = 0;
+  for (int j = 0; j < robots::kHexapodLegs; ++j) {
+    const LegCalibration& leg = r.legs[j];
+    const bool ok = leg.status == LegStatus::kEstimated;
+    if (ok) e.covariance.block<3, 3>(3 * j, 3 * j) = leg.covariance;
+    for (int k = 0; k < 3; ++k) {
+      ParameterEstimate p;
+      p.name = "leg" + std::to_string(j) + ".p_C_A." + "xyz"[k];
+      p.unit = "m";
+      p.value = r.p_C_A[j](k);
+      p.estimated = true;
+      p.identified = ok;
+      p.sigma = ok ? std::sqrt(std::max(0.0, leg.covariance(k, k)))
+                   : std::numeric_limits<double>::infinity();
+      if (!ok) e.covariance(3 * j + k, 3 * j + k) = std::numeric_limits<double>::infinity();
+      identified += ok ? 1 : 0;
+      e.parameters.push_back(p);
+    }
+  }
+  e.identifiability.parameters = n;
+  e.identifiability.rank = identified;
+  e.status = identified == n   ? EstimationStatus::kConverged
+             : identified == 0 ? EstimationStatus::kInsufficientData
+                               : EstimationStatus::kUnidentified;
+  e.warnings = r.warnings;
+  return e;
 }
 
 class Reader : public internal::CheckedYamlReader {
@@ -114,6 +155,7 @@ void WriteHexapodCalibration(const std::string& path, const HexapodCalibrationRe
   out << YAML::Key << "warnings" << YAML::Value << YAML::BeginSeq;
   for (const std::string& w : r.warnings) out << w;
   out << YAML::EndSeq;
+  internal::EmitEstimation(out, r.estimation);
   out << YAML::EndMap;
   std::ofstream file(path);
   file
@@ -143,8 +185,8 @@ HexapodCalibrationFile ReadHexapodCalibration(const std::string& path) {
   if (root["kind"] && kind != kKind)
     in.Bad("kind", "must be " + std::string(kKind) + " (" + kind + ")");
   const int version = in.Int(root, "version", "version", 0);
-  if (root["version"] && version != kVersion) {
-    in.Bad("version", "unsupported (" + std::to_string(version) + ", expected 1)");
+  if (root["version"] && (version < 1 || version > kVersion)) {
+    in.Bad("version", "unsupported (" + std::to_string(version) + ", expected 1 or 2)");
   }
   f.metadata.camera = in.String(root, "camera", "camera");
   f.metadata.created = in.String(root, "created", "created");
@@ -255,7 +297,9 @@ HexapodCalibrationFile ReadHexapodCalibration(const std::string& path) {
     auto& target = std::string(list) == "errors" ? r.errors : r.warnings;
     for (const auto& item : node) target.push_back(item.Scalar());
   }
+  if (version >= 2) r.estimation = internal::ReadEstimation(in, root);
   in.ThrowIfBad();
+  if (version < 2) r.estimation = VersionOneEstimation(r);
   return f;
 }
 

@@ -144,6 +144,75 @@ Eigen::Vector3d LeastMedianStart(const std::vector<Equation>& eqs, double radius
 
 std::string LegName(int j) { return "leg " + std::to_string(j); }
 
+// The estimator contract's report: the 18 coordinates of p_C_A, one identifiability analysis of
+// the block-diagonal weighted system of eq. 14 (a refused leg has zero columns: unidentified).
+EstimationReport HexapodEstimation(
+    const HexapodCalibrationResult& result,
+    const std::array<std::vector<Eigen::Vector3d>, robots::kHexapodLegs>& rows,
+    const std::vector<double>& residuals) {
+  EstimationReport e;
+  e.estimator = "hexapod legs A_j (seed 002 eq. 14)";
+  size_t total = 0;
+  for (const auto& leg_rows : rows) total += leg_rows.size();
+  constexpr int n = 3 * robots::kHexapodLegs;
+  Eigen::MatrixXd J =
+      Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(std::max<size_t>(1, total)), n);
+  std::vector<std::string> names;
+  Eigen::Index row = 0;
+  for (int j = 0; j < robots::kHexapodLegs; ++j) {
+    for (const char* axis : {"x", "y", "z"}) {
+      names.push_back("leg" + std::to_string(j) + ".p_C_A." + axis);
+    }
+    // After the a-posteriori scale correction p' = p/s, ∂r/∂p' = s ∂r/∂p.
+    const double s = result.scale_corrected ? result.scale : 1.0;
+    for (const Eigen::Vector3d& v : rows[j]) J.block<1, 3>(row++, 3 * j) = s * v.transpose();
+  }
+  e.identifiability = AnalyzeIdentifiability(J, names);
+  const Identifiability& id = e.identifiability;
+  e.covariance = Eigen::MatrixXd::Zero(n, n);
+  bool all = true;
+  int iterations = 0;
+  for (int j = 0; j < robots::kHexapodLegs; ++j) {
+    const LegCalibration& leg = result.legs[j];
+    iterations = std::max(iterations, leg.iterations);
+    for (int k = 0; k < 3; ++k) {
+      const int i = 3 * j + k;
+      ParameterEstimate p;
+      p.name = names[static_cast<size_t>(i)];
+      p.unit = "m";
+      p.value = result.p_C_A[j](k);
+      p.estimated = true;
+      p.identified = leg.status == LegStatus::kEstimated && id.identified[static_cast<size_t>(i)];
+      p.sigma = p.identified ? std::sqrt(std::max(0.0, id.normal_inverse(i, i))) : kInf;
+      all = all && p.identified;
+      e.parameters.push_back(p);
+    }
+  }
+  for (int a = 0; a < n; ++a) {
+    for (int b = 0; b < n; ++b) {
+      const bool both = e.parameters[static_cast<size_t>(a)].identified &&
+                        e.parameters[static_cast<size_t>(b)].identified;
+      e.covariance(a, b) = both ? id.normal_inverse(a, b) : (a == b ? kInf : 0.0);
+    }
+  }
+  int estimated_legs = 0;
+  for (const LegCalibration& leg : result.legs) {
+    estimated_legs += leg.status == LegStatus::kEstimated ? 1 : 0;
+  }
+  e.status = all                   ? EstimationStatus::kConverged
+             : estimated_legs == 0 ? EstimationStatus::kInsufficientData
+                                   : EstimationStatus::kUnidentified;
+  for (const std::string& m : result.errors) e.message += (e.message.empty() ? "" : "; ") + m;
+  if (e.message.empty()) {
+    e.message = "every leg estimated (" + std::string(ToString(result.loss)) + " loss)";
+  }
+  e.iterations = iterations;
+  e.variance_factor = 1.0;  // each leg's σ is estimated from its own weighted residuals
+  e.residuals.push_back(SummarizeResiduals("point-to-plane", "m", residuals));
+  e.warnings = result.warnings;
+  return e;
+}
+
 }  // namespace
 
 const char* ToString(RobustLoss loss) {
@@ -346,6 +415,10 @@ HexapodCalibrationResult CalibrateHexapod(const HexapodCalibrationData& data,
 
   std::vector<Equation> eqs;
   std::vector<double> w, r, scratch;
+  // For the estimator contract: each estimated leg's rows √w n / σ (so that (JᵀJ)⁻¹ is its
+  // covariance) and every equation's residual.
+  std::array<std::vector<Eigen::Vector3d>, robots::kHexapodLegs> contract_rows;
+  std::vector<double> contract_residuals;
   eqs.reserve(2 * data.configurations.size());
   for (int j = 0; j < robots::kHexapodLegs; ++j) {
     LegCalibration& leg = result.legs[j];
@@ -446,6 +519,12 @@ HexapodCalibrationResult CalibrateHexapod(const HexapodCalibrationData& data,
                                        : Eigen::Matrix3d::Constant(kInf);
     leg.p_C_A = a;
     leg.status = LegStatus::kEstimated;
+    if (leg.sigma > 0.0) {
+      for (size_t i = 0; i < eqs.size(); ++i) {
+        contract_rows[j].push_back(std::sqrt(w[i]) / leg.sigma * eqs[i].n);
+      }
+    }
+    contract_residuals.insert(contract_residuals.end(), r.begin(), r.end());
     if (leg.down_weighted > options.warn_down_weighted_fraction * n_eq) {
       std::ostringstream msg;
       msg << LegName(j) << ": " << leg.down_weighted << " of " << leg.equations
@@ -519,6 +598,7 @@ HexapodCalibrationResult CalibrateHexapod(const HexapodCalibrationData& data,
     result.warnings.push_back("no rigid fit (eq. 15): fewer than 3 legs estimated (" +
                               std::to_string(est.size()) + ") or their CAD points are collinear");
   }
+  result.estimation = HexapodEstimation(result, contract_rows, contract_residuals);
   return result;
 }
 

@@ -31,6 +31,7 @@
 #include <string>
 #include <vector>
 
+#include "calibration/common/estimation.h"
 #include "robots/hexapod/hexapod_model.h"
 
 namespace kinevis::calibration {
@@ -175,6 +176,10 @@ struct HexapodCalibrationResult {
 
   std::vector<std::string> errors;    // one per refused leg, naming it and why
   std::vector<std::string> warnings;  // ill-conditioned legs, no rigid fit, scale far from 1, ...
+  // The estimator contract's report: the 18 coordinates "legJ.p_C_A.x|y|z" (m) of `p_C_A`, σ and
+  // covariance from one identifiability analysis of eq. 14's weighted system (the legs'
+  // covariances, block-diagonal); a refused leg is unidentified. Residuals: point-to-plane (m).
+  EstimationReport estimation;
 
   // True when all six legs were estimated.
   bool ok() const { return errors.empty(); }

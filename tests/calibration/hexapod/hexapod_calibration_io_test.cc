@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <random>
@@ -115,6 +116,31 @@ TEST(HexapodCalibrationIoTest, RoundTripKeepsEveryValue) {
   }
   EXPECT_EQ(q.errors, r.errors);
   EXPECT_EQ(q.warnings, r.warnings);
+  // The estimator contract's block.
+  EXPECT_EQ(q.estimation.status, r.estimation.status);
+  ASSERT_EQ(q.estimation.parameters.size(), 18u);
+  EXPECT_EQ(q.estimation.Find("leg2.p_C_A.z")->sigma, r.estimation.Find("leg2.p_C_A.z")->sigma);
+  EXPECT_EQ(q.estimation.covariance, r.estimation.covariance);
+
+  // A version 1 file (before the contract) reads, its report rebuilt from the legs.
+  std::string text;
+  {
+    std::ifstream in(path);
+    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  const size_t block = text.find("\nestimation:");
+  ASSERT_NE(block, std::string::npos);
+  text.erase(block + 1);
+  const size_t version = text.find("version: 2");
+  ASSERT_NE(version, std::string::npos);
+  text.replace(version, 10, "version: 1");
+  std::ofstream(path) << text;
+  const HexapodCalibrationFile old = ReadHexapodCalibration(path);
+  EXPECT_EQ(old.result.estimation.Validate(), "");
+  EXPECT_EQ(old.result.estimation.status, r.estimation.status);
+  EXPECT_NEAR(old.result.estimation.Find("leg2.p_C_A.z")->sigma,
+              r.estimation.Find("leg2.p_C_A.z")->sigma,
+              1e-6 * r.estimation.Find("leg2.p_C_A.z")->sigma);
   std::remove(path.c_str());
 }
 

@@ -296,7 +296,14 @@ TEST(LegCalibrationTest, CovarianceMatchesTheScatterOfRepeatedRuns) {
       const Eigen::Vector3d e = r.p_C_A[j] - geometry.X_CB * truth.p_B_A[j];
       sum += e.dot(r.legs[j].covariance.ldlt().solve(e));
       ++n;
+      // The estimator contract's covariance (one identifiability analysis of the weighted
+      // system, by SVD) is each leg's own σ²(JᵀWJ)⁻¹ (by LU).
+      const Eigen::Matrix3d c = r.estimation.covariance.block<3, 3>(3 * j, 3 * j);
+      EXPECT_LT((c - r.legs[j].covariance).norm(), 1e-6 * r.legs[j].covariance.norm()) << j;
     }
+    EXPECT_EQ(r.estimation.Validate(), "");
+    EXPECT_EQ(r.estimation.status, EstimationStatus::kConverged);
+    EXPECT_EQ(r.estimation.identifiability.rank, 18);
   }
   const double mean = sum / n;
   std::printf("mean squared Mahalanobis error over %d leg estimates: %.2f (3 expected)\n", n, mean);
@@ -321,6 +328,7 @@ TEST(LegCalibrationTest, IdenticalConfigurationsAreRefusedAsTooAlike) {
     EXPECT_TRUE(std::isnan(exact.p_C_A[j].x()));
   }
   EXPECT_FALSE(exact.rigid_fit);
+  EXPECT_EQ(exact.estimation.status, EstimationStatus::kInsufficientData);
   // With edge noise the system is merely ill-conditioned: every leg is at least warned about.
   NoiseOptions noise;
   const HexapodCalibrationResult noisy =
@@ -354,6 +362,14 @@ TEST(LegCalibrationTest, ALegSeenInTooFewConfigurationsIsAnErrorNamingIt) {
   EXPECT_TRUE(std::isnan(r.legs[4].rigid_fit_residual));
   EXPECT_LT(r.rigid_fit_max, 1e-9);
   EXPECT_TRUE(r.X_CB.isApprox(geometry.X_CB, 1e-9));
+  // In the contract: leg 4 unidentified, the others identified, the error as the message.
+  EXPECT_EQ(r.estimation.status, EstimationStatus::kUnidentified);
+  EXPECT_EQ(r.estimation.Validate(), "");
+  EXPECT_FALSE(r.estimation.Find("leg4.p_C_A.y")->identified);
+  EXPECT_TRUE(std::isinf(r.estimation.Find("leg4.p_C_A.y")->sigma));
+  EXPECT_TRUE(r.estimation.Find("leg5.p_C_A.z")->identified);
+  EXPECT_THAT(r.estimation.message, ContainsRegex("^leg 4: seen with both limbs"));
+  EXPECT_EQ(r.estimation.identifiability.rank, 15);
 }
 
 TEST(LegCalibrationTest, RigidFitRecoversAKnownTransformExactly) {
