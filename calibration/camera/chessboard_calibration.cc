@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cfloat>
 #include <cmath>
+#include <limits>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -116,6 +117,96 @@ double CoverageOf(const std::vector<ImageReport>& images, int width, int height)
   return static_cast<double>(covered) / (kCoverageCols * kCoverageRows);
 }
 
+// The estimator contract's report: the intrinsics (held ones per the options' flags) with σ and
+// covariance from one AnalyzeIdentifiability of the reprojection Jacobian J (intrinsics, then
+// each view's rvec/tvec), the board poses analysed with them but not listed. total_sq: Σ |r|².
+EstimationReport ChessboardEstimation(const ChessboardCalibrationResult& result,
+                                      const ChessboardCalibrationOptions& options,
+                                      const Eigen::MatrixXd& J, double total_sq) {
+  EstimationReport e;
+  e.estimator = "pinhole + Brown intrinsics (chessboards)";
+  e.message = result.calibrated ? "cv::calibrateCamera" : result.message;
+  if (!result.calibrated) {
+    e.status = result.message.rfind("cv::calibrateCamera failed", 0) == 0
+                   ? EstimationStatus::kFailed
+                   : EstimationStatus::kInsufficientData;
+    return e;
+  }
+  const char* distortion_names[] = {"k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"};
+  const vision::PinholeBrownParameters& p = result.parameters;
+  const int n_intrinsics = 4 + (options.rational_model ? 8 : 5);
+  std::vector<std::string> names = {"fx", "fy", "cx", "cy"};
+  std::vector<double> values = {p.fx, p.fy, p.cx, p.cy};
+  for (int i = 0; i < n_intrinsics - 4; ++i) {
+    names.push_back(distortion_names[i]);
+    values.push_back(p.distortion[static_cast<size_t>(i)]);
+  }
+  std::vector<bool> held(static_cast<size_t>(n_intrinsics), false);
+  if (options.fix_aspect_ratio) held[1] = true;  // fy = (fy/fx) fx
+  if (options.fix_principal_point) held[2] = held[3] = true;
+  if (options.zero_tangential) held[6] = held[7] = true;
+  if (options.fix_k3) held[8] = true;
+  // The free columns: intrinsics not held (fx carries fy's column when the ratio is fixed), then
+  // every pose column.
+  std::vector<int> free;
+  std::vector<std::string> free_names;
+  Eigen::MatrixXd Jf(J.rows(), J.cols());
+  for (int c = 0; c < J.cols(); ++c) {
+    if (c < n_intrinsics && held[static_cast<size_t>(c)]) continue;
+    Eigen::VectorXd column = J.col(c);
+    if (c == 0 && options.fix_aspect_ratio) column += (p.fy / p.fx) * J.col(1);
+    Jf.col(static_cast<Eigen::Index>(free.size())) = column;
+    free.push_back(c);
+    free_names.push_back(c < n_intrinsics ? names[static_cast<size_t>(c)]
+                                          : "view" + std::to_string((c - n_intrinsics) / 6) +
+                                                ".pose" + std::to_string((c - n_intrinsics) % 6));
+  }
+  Jf.conservativeResize(Eigen::NoChange, static_cast<Eigen::Index>(free.size()));
+  const Identifiability all = AnalyzeIdentifiability(Jf, free_names);
+  const double dof = static_cast<double>(J.rows()) - all.rank;
+  const double sigma2 = dof > 0 ? total_sq / dof : 0.0;
+  e.covariance = Eigen::MatrixXd::Zero(n_intrinsics, n_intrinsics);
+  bool every = true;
+  for (int i = 0; i < n_intrinsics; ++i) {
+    ParameterEstimate q;
+    q.name = names[static_cast<size_t>(i)];
+    q.unit = i < 4 ? "px" : "1";
+    q.value = values[static_cast<size_t>(i)];
+    q.initial = std::numeric_limits<double>::quiet_NaN();  // OpenCV's own closed-form start
+    q.estimated = !held[static_cast<size_t>(i)];
+    const auto at = std::find(free.begin(), free.end(), i);
+    const Eigen::Index a = at - free.begin();
+    if (q.estimated) {
+      q.identified = all.identified[static_cast<size_t>(a)];
+      q.sigma = q.identified ? std::sqrt(std::max(0.0, sigma2 * all.normal_inverse(a, a)))
+                             : std::numeric_limits<double>::infinity();
+      every = every && q.identified;
+      for (int j = 0; j < n_intrinsics; ++j) {
+        const auto bt = std::find(free.begin(), free.end(), j);
+        if (bt != free.end())
+          e.covariance(i, j) = sigma2 * all.normal_inverse(a, bt - free.begin());
+      }
+      if (!q.identified) e.covariance(i, i) = std::numeric_limits<double>::infinity();
+    }
+    e.parameters.push_back(q);
+  }
+  e.identifiability = all;
+  e.status = every ? EstimationStatus::kConverged : EstimationStatus::kUnidentified;
+  e.variance_factor = sigma2;  // px²: the corner noise the residuals show (σ assumed 1 px)
+  std::vector<double> residuals;
+  for (const ImageReport& r : result.images) {
+    if (r.status != ImageStatus::kUsed) continue;
+    for (size_t i = 0; i < r.corners_px.size() && i < r.reprojected_px.size(); ++i) {
+      const Eigen::Vector2d d = r.reprojected_px[i] - r.corners_px[i];
+      residuals.push_back(d.x());
+      residuals.push_back(d.y());
+    }
+  }
+  e.residuals.push_back(SummarizeResiduals("corner reprojection (u, v)", "px", residuals));
+  e.warnings = result.warnings;
+  return e;
+}
+
 ChessboardCalibrationResult Calibrate(std::vector<ImageReport> reports, int width, int height,
                                       const ChessboardCalibrationOptions& options) {
   ChessboardCalibrationResult result;
@@ -131,6 +222,7 @@ ChessboardCalibrationResult Calibrate(std::vector<ImageReport> reports, int widt
                      std::to_string(options.min_images) + ")";
     const std::string refused = result.RefusedSummary();
     if (!refused.empty()) result.message += "; refused: " + refused;
+    result.estimation = ChessboardEstimation(result, options, {}, 0.0);
     return result;
   }
 
@@ -169,6 +261,7 @@ ChessboardCalibrationResult Calibrate(std::vector<ImageReport> reports, int widt
         cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 100, DBL_EPSILON));
   } catch (const cv::Exception& e) {
     result.message = std::string("cv::calibrateCamera failed: ") + e.err;
+    result.estimation = ChessboardEstimation(result, options, {}, 0.0);
     return result;
   }
   result.calibrated = true;
@@ -192,6 +285,14 @@ ChessboardCalibrationResult Calibrate(std::vector<ImageReport> reports, int widt
   result.stddev.cy = sd(3);
   for (int i = 0; i < 8; ++i) result.stddev.distortion[i] = sd(4 + i);
 
+  // For the estimator contract: the Jacobian of every corner's reprojection with respect to the
+  // intrinsics (fx fy cx cy, distortion) and each view's pose (OpenCV's projectPoints).
+  const int n_dist = static_cast<int>(D.total());
+  const int n_intrinsics = 4 + n_dist;
+  const int n_columns = n_intrinsics + 6 * static_cast<int>(used.size());
+  const int corners = static_cast<int>(board.size());
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(2 * corners * static_cast<int>(used.size()), n_columns);
+  double total_sq = 0.0;
   for (size_t k = 0; k < used.size(); ++k) {
     ImageReport& r = *used[k];
     cv::Mat R;
@@ -207,7 +308,15 @@ ChessboardCalibrationResult Calibrate(std::vector<ImageReport> reports, int widt
     result.max_tilt_rad = std::max(result.max_tilt_rad, r.tilt_rad);
     std::vector<cv::Point2d> projected;
     std::vector<cv::Point3d> board_d(board.begin(), board.end());
-    cv::projectPoints(board_d, rvecs[k], tvecs[k], K, D, projected);
+    cv::Mat jacobian;  // 2N × (rvec 3, tvec 3, f 2, c 2, distortion)
+    cv::projectPoints(board_d, rvecs[k], tvecs[k], K, D, projected, jacobian);
+    for (int row = 0; row < 2 * corners; ++row) {
+      const int global = 2 * corners * static_cast<int>(k) + row;
+      for (int c = 0; c < 4 + n_dist; ++c) J(global, c) = jacobian.at<double>(row, 6 + c);
+      for (int c = 0; c < 6; ++c) {
+        J(global, n_intrinsics + 6 * static_cast<int>(k) + c) = jacobian.at<double>(row, c);
+      }
+    }
     double sum_sq = 0.0;
     r.max_px = 0.0;
     r.reprojected_px.clear();
@@ -218,6 +327,7 @@ ChessboardCalibrationResult Calibrate(std::vector<ImageReport> reports, int widt
       r.max_px = std::max(r.max_px, e);
     }
     r.rms_px = std::sqrt(sum_sq / projected.size());
+    total_sq += sum_sq;
   }
   result.coverage = CoverageOf(result.images, width, height);
 
@@ -255,6 +365,7 @@ ChessboardCalibrationResult Calibrate(std::vector<ImageReport> reports, int widt
                "not flat, wrong corners, or a lens that needs the rational model",
                result.rms_px));
   }
+  result.estimation = ChessboardEstimation(result, options, J, total_sq);
   return result;
 }
 

@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "calibration/common/estimation.h"
 #include "vision/camera/pinhole_camera.h"
 
 namespace kinevis::calibration {
@@ -105,6 +106,12 @@ struct ChessboardCalibrationResult {
   // Degenerate or weak data: fewer than 3 usable images, all boards nearly fronto-parallel
   // (max tilt < 15°), coverage < 0.5, an intrinsic with a large standard deviation.
   std::vector<std::string> warnings;
+
+  // The estimator contract's report: fx fy cx cy (px) and the distortion coefficients, σ and
+  // covariance from one identifiability analysis of the reprojection Jacobian of every corner
+  // (intrinsics and board poses together); held coefficients (fix_k3, zero_tangential, ...)
+  // marked held. Residuals: corner reprojection (px).
+  EstimationReport estimation;
 
   // Names of the refused images with their reasons, "a.png (board not found), b.png (...)".
   std::string RefusedSummary() const;

@@ -156,6 +156,24 @@ TEST(ChessboardCalibrationTest, NoisyImagesStayWithinTheReportedUncertainty) {
   EXPECT_LT(std::abs(e.fy - t.fy), 3 * r.stddev.fy);
   EXPECT_LT(std::abs(e.cx - t.cx), 3 * r.stddev.cx);
   EXPECT_LT(std::abs(e.cy - t.cy), 3 * r.stddev.cy);
+  // The contract's σ (one identifiability analysis of the reprojection Jacobian from
+  // cv::projectPoints) agree with cv::calibrateCamera's own standard deviations up to OpenCV's
+  // degrees of freedom: it divides Σ r² by (points − parameters), where there are two residuals
+  // per point, so its σ are larger by √((2N − p)/(N − p)) (≈ 1.46 here).
+  const EstimationReport& c = r.estimation;
+  EXPECT_EQ(c.Validate(), "");
+  EXPECT_EQ(c.status, EstimationStatus::kConverged);
+  const double points = c.residuals[0].count / 2.0;
+  const double parameters = c.identifiability.rank;
+  const double opencv = std::sqrt((2 * points - parameters) / (points - parameters));
+  EXPECT_NEAR(opencv * c.Find("fx")->sigma, r.stddev.fx, 0.01 * r.stddev.fx);
+  EXPECT_NEAR(opencv * c.Find("cy")->sigma, r.stddev.cy, 0.01 * r.stddev.cy);
+  EXPECT_NEAR(opencv * c.Find("k1")->sigma, r.stddev.distortion[0], 0.01 * r.stddev.distortion[0]);
+  EXPECT_FALSE(c.Find("k3")->estimated);  // Options() keeps fix_k3
+  EXPECT_EQ(c.Find("k3")->sigma, 0.0);
+  EXPECT_EQ(c.Find("fx")->unit, "px");
+  EXPECT_EQ(c.identifiability.rank, c.identifiability.parameters);
+  EXPECT_NEAR(c.residuals[0].rms * std::sqrt(2.0), r.rms_px, 1e-9);
 }
 
 // The pose of each board is recovered too (up to the 180° ambiguity of an odd × even board's
@@ -253,6 +271,8 @@ TEST(ChessboardCalibrationTest, TooFewUsableImagesIsReportedNotCalibrated) {
   EXPECT_EQ(r.used_images, 2);
   EXPECT_THAT(r.message, HasSubstr("only 2 of 3 images usable (minimum 3)"));
   EXPECT_THAT(r.message, HasSubstr("blank.png (board not found"));
+  EXPECT_EQ(r.estimation.status, EstimationStatus::kInsufficientData);
+  EXPECT_EQ(r.estimation.message, r.message);
 
   // With the minimum lowered the two views calibrate, with a warning.
   ChessboardCalibrationOptions o = Options();
