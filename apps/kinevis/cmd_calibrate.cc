@@ -162,6 +162,7 @@ void PrintResult(const calibration::ChessboardCalibrationResult& r, bool rationa
   for (int i = 0; i < (rational ? 8 : 5); ++i) {
     std::printf("  %s = %+.6g +- %.2g\n", kNames[i], p.distortion[i], r.stddev.distortion[i]);
   }
+  std::printf("estimation: %s\n", r.estimation.BriefReport().c_str());
   for (const std::string& w : r.warnings) std::printf("warning: %s\n", w.c_str());
 }
 

@@ -130,6 +130,7 @@ void PrintDiamondCalibration(const DiamondCalibrationRun& run) {
       "  task (phi, gamma) by spherical positioning, %d samples: mean %.2e, %.2e  rms %.2e, "
       "%.2e  max %.2e, %.2e rad\n",
       tk.count, tk.mean.x(), tk.mean.y(), tk.rms.x(), tk.rms.y(), tk.sup.x(), tk.sup.y());
+  std::printf("estimation: %s\n", s.estimation.BriefReport().c_str());
   for (const std::string& w : s.warnings) std::printf("warning: %s\n", w.c_str());
   if (run.has_truth) {
     const robots::DiamondModel& t = run.truth.model;

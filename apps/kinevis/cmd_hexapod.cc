@@ -109,6 +109,7 @@ void PrintHexapodCalibration(const HexapodCalibrationRun& run) {
     std::printf("largest change of an A_j in the last pass: %.3f mm\n",
                 1e3 * run.calibration.last_pass_change);
   }
+  std::printf("estimation: %s\n", r.estimation.BriefReport().c_str());
   for (const std::string& e : r.errors) std::printf("error: %s\n", e.c_str());
   for (const std::string& w : r.warnings) std::printf("warning: %s\n", w.c_str());
 }

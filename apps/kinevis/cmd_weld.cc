@@ -87,6 +87,7 @@ int RunCalibrateScanner(const ScannerCalibrateOptions& o) {
   const double wall = job.wall_seconds;
   const calibration::LaserScannerCalibration& c = run.calibration;
   for (const std::string& s : run.skipped) std::printf("  skipped: %s\n", s.c_str());
+  std::printf("  estimation: %s\n", c.estimation.BriefReport().c_str());
   for (const std::string& w : c.warnings) std::printf("  warning: %s\n", w.c_str());
   for (const std::string& e : c.errors) std::printf("  error: %s\n", e.c_str());
   std::printf("scanner calibration from %s: %zu board poses, %d images (%.1f s)\n",

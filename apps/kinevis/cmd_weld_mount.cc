@@ -190,6 +190,7 @@ void PrintSummary(const calibration::MountCalibrationSummary& s,
     for (const std::string& f : s.fixed_dh) fixed += (fixed.empty() ? "" : ", ") + f;
     std::printf("  D-H errors held at nominal: %s\n", fixed.empty() ? "none" : fixed.c_str());
   }
+  std::printf("  estimation: %s\n", s.estimation.BriefReport().c_str());
   for (const std::string& w : s.warnings) std::printf("  warning: %s\n", w.c_str());
 }
 
