@@ -17,14 +17,7 @@ constexpr const char* kKind = "kinevis-diamond-calibration";
 // Version 1 files (without it) are read, their report derived from what they hold.
 constexpr int kVersion = 2;
 
-std::string NowUtc() {
-  const std::time_t now = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&now, &tm);
-  char buffer[32];
-  std::strftime(buffer, sizeof(buffer), "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return buffer;
-}
+using internal::NowUtc;
 
 template <typename Vec>
 void EmitList(YAML::Emitter& out, const Vec& v, int n) {

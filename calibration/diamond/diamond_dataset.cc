@@ -12,6 +12,7 @@
 #include <stdexcept>
 
 #include "calibration/common/csv_internal.h"
+#include "calibration/common/yaml_reader_internal.h"
 #include "robots/io/robot_description.h"
 
 namespace kinevis::calibration {
@@ -32,14 +33,7 @@ std::string Num(double v) {
   return out.str();
 }
 
-std::string UtcNow() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char text[32];
-  std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return text;
-}
+using internal::NowUtc;
 
 void Copy(const std::string& from, const fs::path& to) {
   std::error_code ec;
@@ -84,7 +78,7 @@ void CreateDiamondDataset(DiamondDataset* d) {
     Copy(d->camera_model, dir / name);
     d->camera_model = name;
   }
-  if (d->created.empty()) d->created = UtcNow();
+  if (d->created.empty()) d->created = NowUtc();
   const Eigen::Quaterniond q(d->X_OC.linear());
   YAML::Emitter out;
   out.SetDoublePrecision(17);

@@ -11,6 +11,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "calibration/common/yaml_reader_internal.h"
 #include "common/units.h"
 #include "robots/io/robot_description.h"
 
@@ -40,14 +41,7 @@ void EmitPose(YAML::Emitter& out, const Eigen::Isometry3d& X) {
   out << YAML::EndMap;
 }
 
-std::string UtcNow() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char text[32];
-  std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return text;
-}
+using internal::NowUtc;
 
 void Copy(const std::string& from, const fs::path& to) {
   std::error_code ec;
@@ -81,7 +75,7 @@ void CreateHexapodDataset(HexapodDataset* d) {
     Copy(d->camera_model, dir / name);
     d->camera_model = name;
   }
-  if (d->created.empty()) d->created = UtcNow();
+  if (d->created.empty()) d->created = NowUtc();
 
   YAML::Emitter out;
   out << YAML::BeginMap;

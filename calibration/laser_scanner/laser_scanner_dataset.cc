@@ -12,6 +12,7 @@
 #include <stdexcept>
 
 #include "calibration/common/csv_internal.h"
+#include "calibration/common/yaml_reader_internal.h"
 
 namespace kinevis::calibration {
 namespace {
@@ -24,14 +25,7 @@ namespace fs = std::filesystem;
 constexpr const char* kKind = "kinevis-laser-scanner-dataset";
 constexpr const char* kHeader = "image,board_pose,lasers,rotating_step,stripes";
 
-std::string NowUtc() {
-  const std::time_t now = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&now, &tm);
-  char buffer[32];
-  std::strftime(buffer, sizeof(buffer), "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return buffer;
-}
+using internal::NowUtc;
 
 }  // namespace
 

@@ -14,6 +14,7 @@
 #include <stdexcept>
 
 #include "calibration/common/csv_internal.h"
+#include "calibration/common/yaml_reader_internal.h"
 #include "common/units.h"
 
 namespace kinevis::calibration {
@@ -34,14 +35,7 @@ constexpr const char* kPointsHeader = "x_mm,y_mm,z_mm,confidence";
 constexpr double kJointScale[5] = {common::kDegPerRad, common::kDegPerRad, common::kMmPerM,
                                    common::kDegPerRad, common::kDegPerRad};
 
-std::string NowUtc() {
-  const std::time_t now = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&now, &tm);
-  char buffer[32];
-  std::strftime(buffer, sizeof(buffer), "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return buffer;
-}
+using internal::NowUtc;
 
 std::string Num(double v) {
   char buffer[32];
