@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "robots/io/robot_description.h"
+#include "tests/utilities/version_one_file.h"
 #include "vision/camera/pinhole_camera.h"
 #include "vision/render/scenes/diamond_marker_scene.h"
 
@@ -103,18 +104,7 @@ TEST(DiamondCalibrationIoTest, ReadsVersionOneFilesWithoutTheEstimationBlock) {
   const DiamondIdentificationSummary s = Identified();
   const std::string path = TempPath("version1.yaml");
   WriteDiamondCalibration(path, s, {});
-  std::string text;
-  {
-    std::ifstream in(path);
-    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-  }
-  const size_t block = text.find("\nestimation:");
-  ASSERT_NE(block, std::string::npos);
-  text.erase(block + 1);
-  const size_t version = text.find("version: 2");
-  ASSERT_NE(version, std::string::npos);
-  text.replace(version, 10, "version: 1");
-  std::ofstream(path) << text;
+  kinevis::testing::RewriteAsVersionOne(path);
   const DiamondCalibrationFile f = ReadDiamondCalibration(path);
   EXPECT_EQ(f.summary.estimation.status, EstimationStatus::kUnidentified);
   EXPECT_EQ(f.summary.estimation.Validate(), "");

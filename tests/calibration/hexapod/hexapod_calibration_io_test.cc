@@ -16,6 +16,7 @@
 
 #include "calibration/hexapod/pose_planner.h"
 #include "calibration/hexapod/reprojection_image.h"
+#include "tests/utilities/version_one_file.h"
 #include "vision/camera/pinhole_camera.h"
 #include "vision/render/scenes/hexapod_scene.h"
 
@@ -123,18 +124,7 @@ TEST(HexapodCalibrationIoTest, RoundTripKeepsEveryValue) {
   EXPECT_EQ(q.estimation.covariance, r.estimation.covariance);
 
   // A version 1 file (before the contract) reads, its report rebuilt from the legs.
-  std::string text;
-  {
-    std::ifstream in(path);
-    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-  }
-  const size_t block = text.find("\nestimation:");
-  ASSERT_NE(block, std::string::npos);
-  text.erase(block + 1);
-  const size_t version = text.find("version: 2");
-  ASSERT_NE(version, std::string::npos);
-  text.replace(version, 10, "version: 1");
-  std::ofstream(path) << text;
+  kinevis::testing::RewriteAsVersionOne(path);
   const HexapodCalibrationFile old = ReadHexapodCalibration(path);
   EXPECT_EQ(old.result.estimation.Validate(), "");
   EXPECT_EQ(old.result.estimation.status, r.estimation.status);

@@ -13,6 +13,7 @@
 
 #include "calibration/laser_scanner/laser_scanner_calibration_io.h"
 #include "calibration/laser_scanner/synthetic_stripes.h"
+#include "tests/utilities/version_one_file.h"
 #include "vision/camera/camera_file.h"
 #include "vision/render/renderer.h"
 
@@ -146,18 +147,7 @@ TEST(LaserScannerDataset, RecordedDatasetCalibratesAndTheResultFileRoundTrips) {
               c.calibration.estimation.Find("d_y")->sigma, 1e-6 * c.calibration.d_y_sigma());
 
   // A version 1 file (before the contract) reads, its report rebuilt from the planes.
-  std::string text;
-  {
-    std::ifstream in(yaml);
-    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-  }
-  const size_t block = text.find("\nestimation:");
-  ASSERT_NE(block, std::string::npos);
-  text.erase(block + 1);
-  const size_t version = text.find("version: 2");
-  ASSERT_NE(version, std::string::npos);
-  text.replace(version, 10, "version: 1");
-  std::ofstream(yaml) << text;
+  kinevis::testing::RewriteAsVersionOne(yaml);
   const LaserScannerCalibrationFile old = ReadLaserScannerCalibration(yaml);
   EXPECT_EQ(old.result.estimation.Validate(), "");
   EXPECT_EQ(old.result.estimation.status, EstimationStatus::kConverged);

@@ -14,6 +14,7 @@
 #include <string>
 
 #include "tests/calibration/weld_mount/simulated_mount_data.h"
+#include "tests/utilities/version_one_file.h"
 
 namespace kinevis::calibration {
 namespace {
@@ -249,18 +250,7 @@ TEST(MountCalibrationIoTest, ReadsVersionOneFilesWithoutTheEstimationBlock) {
   const Solved& s = Cached(/*dh=*/false);
   const std::string path = TempFile("version1.yaml");
   WriteScannerMountCalibration(path, s.summary, Metadata(s.sim));
-  std::string text;
-  {
-    std::ifstream in(path);
-    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-  }
-  const size_t block = text.find("\nestimation:");
-  ASSERT_NE(block, std::string::npos);
-  text.erase(block + 1);
-  const size_t version = text.find("version: 2");
-  ASSERT_NE(version, std::string::npos);
-  text.replace(version, 10, "version: 1");
-  std::ofstream(path) << text;
+  kinevis::testing::RewriteAsVersionOne(path);
   const ScannerMountCalibrationFile f = ReadScannerMountCalibration(path);
   EXPECT_EQ(f.summary.estimation.status, s.summary.estimation.status);
   EXPECT_EQ(f.summary.estimation.Validate(), "");
