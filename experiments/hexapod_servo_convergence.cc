@@ -608,7 +608,7 @@ RunResult RunServo(const Args& args, const Setup& setup, const Variant& variant,
   });
   r.outcome = report.outcome == kv::control::ServoLoopOutcome::kTimeout
                   ? "ran"
-                  : kv::control::ToString(report.outcome);
+                  : kv::control::ServoOutcomeName(report.outcome);
   if (report.outcome != kv::control::ServoLoopOutcome::kTimeout) {
     spdlog::warn("{}: {}", name, report.message);
   }

@@ -388,12 +388,12 @@ void HexapodPart(const std::string& out_dir, int poses, Checks* checks) {
   std::snprintf(text, sizeof text,
                 "servo from the leg edges: %s in %.2f s of simulated time (%llu camera frames, "
                 "%llu hold cycles)",
-                control::ToString(s.report.outcome), s.report.duration_s,
+                control::ServoOutcomeName(s.report.outcome), s.report.duration_s,
                 static_cast<unsigned long long>(s.report.frames),
                 static_cast<unsigned long long>(s.report.hold_cycles_leg_lost +
                                                 s.report.hold_cycles_stale_camera +
                                                 s.report.hold_cycles_law));
-  checks->Expect(s.report.outcome == control::ServoLoopOutcome::kConverged, text);
+  checks->Expect(s.report.outcome == control::LoopOutcome::kCompleted, text);
   std::snprintf(text, sizeof text,
                 "platform at the target pose within %.2f mm and %.3f deg (true pose; limit 5 mm, "
                 "1.5 deg)",

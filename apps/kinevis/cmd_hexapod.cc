@@ -181,7 +181,7 @@ Eigen::Isometry3d PoseFromValues(const std::vector<double>& v) {
 void PrintHexapodServo(const HexapodServoRun& run, const HexapodServoOptions& o) {
   const control::ServoLoopReport& r = run.report;
   std::printf("servo hexapod: %s after %.2f s: |e| = %.3g (threshold %.3g)",
-              control::ToString(r.outcome), r.duration_s, r.final_error_norm, o.threshold);
+              control::ServoOutcomeName(r.outcome), r.duration_s, r.final_error_norm, o.threshold);
   if (r.time_to_threshold_s >= 0) {
     std::printf(", convergence test first met at %.2f s", r.time_to_threshold_s);
   }
@@ -221,9 +221,10 @@ int RunServo(ServoCommandOptions o) {
   const HexapodServoRun run = ServoHexapod(&rig, o.servo);
   PrintHexapodServo(run, o.servo);
   switch (run.report.outcome) {
-    case control::ServoLoopOutcome::kConverged:
+    case control::LoopOutcome::kCompleted:
       return kExitOk;
-    case control::ServoLoopOutcome::kDriveFault:
+    case control::LoopOutcome::kDriveFault:
+    case control::LoopOutcome::kNotStarted:
       return kExitHardware;
     default:
       return kExitJobFailed;

@@ -108,6 +108,28 @@ DeadlineGrid::Wake DeadlineGrid::Next() {
   return wake;
 }
 
+CycleTimingRecorder::CycleTimingRecorder(size_t capacity) : capacity_(capacity) {
+  for (std::vector<double>* v : {&periods_, &lateness_, &io_, &compute_}) v->reserve(capacity);
+}
+
+void CycleTimingRecorder::Wake(const DeadlineGrid::Wake& wake) {
+  if (!wake.first && periods_.size() < capacity_) periods_.push_back(wake.period_s);
+  if (lateness_.size() < capacity_) lateness_.push_back(wake.lateness_s);
+}
+
+void CycleTimingRecorder::Io(double seconds) {
+  if (io_.size() < capacity_) io_.push_back(seconds);
+}
+
+void CycleTimingRecorder::Compute(double seconds) {
+  if (compute_.size() < capacity_) compute_.push_back(seconds);
+}
+
+PeriodStatistics CycleTimingRecorder::Statistics(double target_s, uint64_t missed_deadlines) {
+  return ComputePeriodStatistics(target_s, std::move(periods_), std::move(lateness_),
+                                 std::move(io_), std::move(compute_), missed_deadlines);
+}
+
 PeriodStatistics MeasureLoopTiming(common::Clock* clock, double period_s, double duration_s) {
   if (clock == nullptr) throw std::invalid_argument("MeasureLoopTiming: null clock");
   if (!(period_s > 0.0 && period_s <= 1.0)) {
@@ -121,21 +143,17 @@ PeriodStatistics MeasureLoopTiming(common::Clock* clock, double period_s, double
   const auto period =
       std::chrono::duration_cast<common::Duration>(std::chrono::duration<double>(period_s));
   const size_t cycles = static_cast<size_t>(std::ceil(duration_s / period_s));
-  std::vector<double> periods, lateness;
-  periods.reserve(cycles);
-  lateness.reserve(cycles);
+  CycleTimingRecorder recorder(cycles);
   const common::Duration start = clock->Now();
   const common::Duration end = start + std::chrono::duration_cast<common::Duration>(
                                            std::chrono::duration<double>(duration_s));
   DeadlineGrid grid(clock, period, start);
-  for (;;) {
+  for (size_t k = 1;; ++k) {
     const DeadlineGrid::Wake wake = grid.Next();
-    if (!wake.first) periods.push_back(wake.period_s);
-    lateness.push_back(wake.lateness_s);
-    if (wake.time >= end || lateness.size() >= cycles) break;
+    recorder.Wake(wake);
+    if (wake.time >= end || k >= cycles) break;
   }
-  return ComputePeriodStatistics(period_s, std::move(periods), std::move(lateness), {}, {},
-                                 grid.missed_deadlines());
+  return recorder.Statistics(period_s, grid.missed_deadlines());
 }
 
 std::string SteadyRateProblem(const PeriodStatistics& s) {

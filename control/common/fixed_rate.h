@@ -68,6 +68,22 @@ class DeadlineGrid {
   uint64_t missed_ = 0;
 };
 
+// The per-cycle timing samples of a run, reserved before it: recording never allocates in the
+// cycle (samples beyond the capacity are not kept). Statistics() turns them into
+// PeriodStatistics.
+class CycleTimingRecorder {
+ public:
+  explicit CycleTimingRecorder(size_t capacity);
+  void Wake(const DeadlineGrid::Wake& wake);  // the period (not for the first) and the lateness
+  void Io(double seconds);                    // time in the bus Cycle()
+  void Compute(double seconds);               // time in the law and the safety layer
+  PeriodStatistics Statistics(double target_s, uint64_t missed_deadlines);  // empties the samples
+
+ private:
+  size_t capacity_;
+  std::vector<double> periods_, lateness_, io_, compute_;
+};
+
 // How steadily this host paces an empty loop at `period_s` for `duration_s` on `clock` (the same
 // DeadlineGrid the control loops use; nothing else runs in the cycle, so io and compute stay 0).
 // Throws std::invalid_argument unless 0 < period_s <= 1 and period_s <= duration_s <= 3600.

@@ -56,10 +56,8 @@ void BringUpDiamondDrives(hal::Rs485DriveBus* bus, std::chrono::milliseconds ena
   bus->ConfigureAll();
   if (const std::error_code ec = bus->EnableAll(enable_timeout)) {
     std::string text = "diamond drives: enabling failed (" + ec.message() + ")";
-    for (hal::MotorDrive* d : bus->drives()) {
-      if (const auto* h = dynamic_cast<const hal::Cia402HostDrive*>(d)) {
-        if (!h->last_error_text().empty()) text += "; " + h->last_error_text();
-      }
+    for (const hal::MotorDrive* d : bus->drives()) {
+      if (const std::string cause = d->last_error_text(); !cause.empty()) text += "; " + cause;
     }
     throw std::runtime_error(text);
   }

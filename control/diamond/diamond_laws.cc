@@ -38,20 +38,6 @@ double Condition(const Eigen::Matrix2d& J) {
 
 }  // namespace
 
-const char* ToString(DiamondLawState state) {
-  switch (state) {
-    case DiamondLawState::kRunning:
-      return "running";
-    case DiamondLawState::kHold:
-      return "hold";
-    case DiamondLawState::kDone:
-      return "done";
-    case DiamondLawState::kStop:
-      return "stop";
-  }
-  return "?";
-}
-
 const char* ToString(DiamondLineKind kind) {
   return kind == DiamondLineKind::kTaskLine ? "task" : "top-view";
 }

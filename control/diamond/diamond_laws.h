@@ -22,6 +22,7 @@
 #include <string>
 
 #include "common/clock.h"
+#include "control/common/loop.h"
 #include "robots/diamond/diamond_model.h"
 #include "vision/camera/camera_model.h"
 #include "vision/diamond/marker_detector.h"
@@ -38,13 +39,10 @@ struct DiamondCycleInput {
   Eigen::Vector2d q = Eigen::Vector2d::Zero();  // joint readings (rad)
 };
 
-enum class DiamondLawState {
-  kRunning,  // q_dot is the command
-  kHold,     // hold still (q_dot zero): waiting for a frame, a frame without the marker
-  kDone,     // finished: the line is followed and settled, or the servo converged
-  kStop,     // cannot go on: the loop stops the robot and ends with `reason`
-};
-const char* ToString(DiamondLawState state);
+// The law's answer each cycle (control/common/loop.h): kRunning (q_dot is the command), kHold
+// (q_dot zero: waiting for a frame, a frame without the marker), kDone (the line is followed and
+// settled, or the servo converged), kStop (the loop stops the robot and ends with `reason`).
+using DiamondLawState = LawState;
 
 struct DiamondLawOutput {
   DiamondLawState state = DiamondLawState::kHold;

@@ -13,7 +13,6 @@
 #include "common/clock.h"
 #include "common/config_error.h"
 #include "hal/common/error.h"
-#include "hal/drive/cia402_can_drive.h"
 
 namespace kinevis::control {
 namespace {
@@ -57,24 +56,6 @@ std::string DiamondLoopOptions::Validate() const {
   return problems.Message();
 }
 
-const char* ToString(DiamondLoopOutcome outcome) {
-  switch (outcome) {
-    case DiamondLoopOutcome::kCompleted:
-      return "completed";
-    case DiamondLoopOutcome::kDriveFault:
-      return "drive fault";
-    case DiamondLoopOutcome::kLawStop:
-      return "stopped by the law";
-    case DiamondLoopOutcome::kLimit:
-      return "limit";
-    case DiamondLoopOutcome::kTimeout:
-      return "timeout";
-    case DiamondLoopOutcome::kNotStarted:
-      return "not started";
-  }
-  return "?";
-}
-
 double Straightness(const std::vector<Eigen::Vector2d>& points) {
   if (points.size() < 3) return 0.0;
   Eigen::Vector2d mean = Eigen::Vector2d::Zero();
@@ -106,6 +87,13 @@ DiamondControlLoop::DiamondControlLoop(hal::DriveBus* bus, common::Clock* clock,
   }
   if (const std::string m = model.Validate(); !m.empty()) add("model: " + m);
   if (!message.empty()) throw std::invalid_argument("DiamondControlLoop: " + message);
+  DriveSupervisorOptions supervision;
+  supervision.cycle_period_s = options_.cycle_period_s;
+  supervision.max_consecutive_cycle_timeouts = options_.max_consecutive_cycle_timeouts;
+  supervision.stop_action = options_.stop_action;
+  supervision.axis_name = "joint";
+  supervision.first_axis_number = 1;
+  supervisor_ = std::make_unique<DriveSupervisor>(bus_, clock_, kDiamondJoints, supervision);
 }
 
 bool DiamondControlLoop::SetCommand(const Eigen::Vector2d& q_command) {
@@ -146,74 +134,27 @@ std::string DiamondControlLoop::CheckLimits(const Eigen::Vector2d& q,
   return out.str();
 }
 
-std::string DiamondControlLoop::DriveFaults(DiamondLoopReport* report) const {
-  std::ostringstream out;
-  for (int i = 0; i < kDiamondJoints; ++i) {
-    const hal::DriveStatus st = drives_[i]->status();
-    if (drives_[i]->lifecycle() != common::DeviceLifecycle::kFault &&
-        st.fault_source == hal::DriveFaultSource::kNone) {
-      continue;
-    }
-    if (report->faulted_drive < 0) report->faulted_drive = i;
-    out << (out.tellp() > 0 ? "; " : "") << "joint " << i + 1 << " drive " << drives_[i]->name()
-        << ": " << (st.fault_source == hal::DriveFaultSource::kLink ? "link lost" : "device fault")
-        << ", error code 0x" << std::hex << st.error_code << std::dec;
-    if (const auto* host = dynamic_cast<const hal::Cia402HostDrive*>(drives_[i])) {
-      if (!host->last_error_text().empty()) out << " (" << host->last_error_text() << ")";
-    }
-  }
-  return out.str();
-}
-
 void DiamondControlLoop::HoldAndSettle(Eigen::Vector2d* q_command) {
   // Brakes the commanded motion at stop_deceleration (the stopping distance the limit check
   // allowed for), then holds the set-point for a few cycles so that the drives arrive.
   const double dt = options_.cycle_period_s;
-  const common::Duration period = common::FromSeconds(dt);
-  common::Duration next = clock_->Now();
   Eigen::Vector2d v = Eigen::Vector2d::Zero();
   for (int i = 0; i < kDiamondJoints; ++i) v[i] = drives_[i]->status().velocity;
-  const int max_cycles = static_cast<int>(1.0 / dt) + 1;
   int still = 0;
-  for (int k = 0; k < max_cycles && still < 10; ++k) {
+  supervisor_->Settle([&] {
+    if (still >= 10) return false;
     const double speed = v.cwiseAbs().maxCoeff();
     if (speed > 0) v *= std::max(0.0, speed - options_.stop_deceleration * dt) / speed;
     *q_command += v * dt;
     SetCommand(*q_command);
-    next += period;
-    clock_->SleepUntil(next);
-    if (bus_->Cycle()) return;
     still = v.isZero() ? still + 1 : 0;
-  }
+    return true;
+  });
 }
 
 void DiamondControlLoop::SafeState(DiamondLoopReport* report) {
-  for (hal::MotorDrive* d : drives_) {
-    std::error_code ec;
-    if (options_.stop_action == DiamondStopAction::kDisable) {
-      if (d->lifecycle() != common::DeviceLifecycle::kFault &&
-          d->lifecycle() != common::DeviceLifecycle::kUnconfigured) {
-        ec = d->Disable();
-      }
-    } else if (d->lifecycle() == common::DeviceLifecycle::kActive) {
-      ec = d->QuickStop();
-    }
-    if (ec) {
-      spdlog::warn("diamond loop: bringing {} to the safe state failed: {}", d->name(),
-                   ec.message());
-      report->message += "; " + d->name() + ": safe state not confirmed (" + ec.message() + ")";
-    }
-  }
-  // Keep cycling until both joints are at rest (at most 1 s): a drive receives its controlword
-  // only with the cycles.
-  const common::Duration period = common::FromSeconds(options_.cycle_period_s);
-  const common::Duration end = clock_->Now() + common::FromSeconds(1.0);
-  for (common::Duration next = clock_->Now() + period; clock_->Now() < end; next += period) {
-    clock_->SleepUntil(next);
-    bus_->Cycle();
-    bool still = true;
-    for (hal::MotorDrive* d : drives_) still = still && std::abs(d->status().velocity) < 1e-6;
-    if (still) break;
+  if (const std::string problems = supervisor_->SafeStop(); !problems.empty()) {
+    report->message += "; " + problems;
   }
 }
 
@@ -228,33 +169,20 @@ DiamondLoopReport DiamondControlLoop::Run(
   const common::Duration period = common::FromSeconds(dt);
   const size_t capacity = static_cast<size_t>(options_.timeout_s / dt) + 16;
   if (options_.keep_samples) report.samples.reserve(capacity);
-  std::vector<double> periods, lateness, io, compute;
-  periods.reserve(capacity);
-  lateness.reserve(capacity);
-  io.reserve(capacity);
-  compute.reserve(capacity);
-  const auto record = [&capacity](std::vector<double>* v, double x) {
-    if (v->size() < capacity) v->push_back(x);
-  };
+  CycleTimingRecorder timing(capacity);
 
   Eigen::Vector2d q_command;
-  for (int i = 0; i < kDiamondJoints; ++i) {
-    q_command[i] = drives_[i]->status().position;
-    drives_[i]->SetTargetPosition(q_command[i]);
-    if (const std::error_code ec =
-            drives_[i]->SetMode(hal::DriveMode::kCyclicSynchronousPosition)) {
-      report.outcome = DiamondLoopOutcome::kNotStarted;
-      report.faulted_drive = i;
-      report.message = "joint " + std::to_string(i + 1) + " drive " + drives_[i]->name() +
-                       ": cannot select cyclic synchronous position: " + ec.message();
-      return report;
-    }
+  supervisor_->Positions(q_command.data());
+  report.message =
+      supervisor_->SelectMode(hal::DriveMode::kCyclicSynchronousPosition, &report.faulted_drive);
+  if (!report.message.empty()) {
+    report.outcome = DiamondLoopOutcome::kNotStarted;
+    return report;
   }
 
   const common::Duration start = clock_->Now();
   law->Start(q_command, start);
   DeadlineGrid grid(clock_, period, start);
-  int consecutive_timeouts = 0;
   Eigen::Vector2d q_dot_previous = Eigen::Vector2d::Zero();
   robots::DiamondData data;
   DiamondLoopSample sample;
@@ -270,35 +198,18 @@ DiamondLoopReport DiamondControlLoop::Run(
     sample.time_s = common::ToSeconds(now - start);
     sample.period_s = wake.period_s;
     sample.lateness_s = wake.lateness_s;
-    if (!wake.first) record(&periods, sample.period_s);
-    record(&lateness, sample.lateness_s);
+    timing.Wake(wake);
     ++report.cycles;
 
     // 1. The bus.
-    const std::error_code cycle_error = bus_->Cycle();
+    const SupervisedCycle cycle = supervisor_->Cycle();
     const common::Duration io_end = clock_->Now();
     sample.io_s = common::ToSeconds(io_end - now);
-    record(&io, sample.io_s);
-    bool faulted = false;
-    if (cycle_error == hal::Errc::kTimeout) {
-      ++report.cycle_timeouts;
-      faulted = ++consecutive_timeouts > options_.max_consecutive_cycle_timeouts;
-    } else {
-      consecutive_timeouts = 0;
-      faulted = static_cast<bool>(cycle_error);
-    }
-    for (hal::MotorDrive* d : drives_) {
-      faulted = faulted || d->lifecycle() == common::DeviceLifecycle::kFault;
-    }
-    if (faulted) {
-      std::ostringstream m;
-      m << "drive fault at t = " << sample.time_s << " s (bus " << bus_->name() << ": "
-        << (cycle_error ? cycle_error.message() : std::string("no error"));
-      if (consecutive_timeouts > options_.max_consecutive_cycle_timeouts) {
-        m << ", " << consecutive_timeouts << " cycles in a row without every drive's answer";
-      }
-      m << "): " << DriveFaults(&report);
-      finish(DiamondLoopOutcome::kDriveFault, m.str());
+    timing.Io(sample.io_s);
+    report.cycle_timeouts = supervisor_->cycle_timeouts();
+    if (cycle.fault) {
+      finish(DiamondLoopOutcome::kDriveFault,
+             supervisor_->FaultMessage(cycle, sample.time_s, &report.faulted_drive));
       SafeState(&report);
       spdlog::error("diamond loop: {}", report.message);
       break;
@@ -380,7 +291,7 @@ DiamondLoopReport DiamondControlLoop::Run(
     SetCommand(q_command);
     sample.q_command = q_command;
     sample.q_dot = q_dot;
-    record(&compute, common::ToSeconds(clock_->Now() - io_end));
+    timing.Compute(common::ToSeconds(clock_->Now() - io_end));
     if (options_.keep_samples && report.samples.size() < capacity) report.samples.push_back(sample);
     if (observer) observer(sample);
 
@@ -392,9 +303,7 @@ DiamondLoopReport DiamondControlLoop::Run(
   }
   report.duration_s = common::ToSeconds(clock_->Now() - start);
   for (int i = 0; i < kDiamondJoints; ++i) report.final_q[i] = drives_[i]->status().position;
-  report.timing =
-      ComputePeriodStatistics(dt, std::move(periods), std::move(lateness), std::move(io),
-                              std::move(compute), grid.missed_deadlines());
+  report.timing = timing.Statistics(dt, grid.missed_deadlines());
   return report;
 }
 

@@ -50,18 +50,19 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "common/clock.h"
+#include "control/common/drive_supervisor.h"
 #include "control/common/fixed_rate.h"  // PeriodStatistics, DeadlineGrid
+#include "control/common/loop.h"
 #include "control/diamond/diamond_laws.h"
 #include "hal/drive/motor_drive.h"
 #include "robots/diamond/diamond_model.h"
 
 namespace kinevis::control {
-
-enum class DiamondStopAction { kQuickStop, kDisable };
 
 struct DiamondLoopOptions {
   double cycle_period_s = 0.001;           // target 1 kHz; > 0, <= 0.1
@@ -73,20 +74,14 @@ struct DiamondLoopOptions {
   double separation_margin = 0.01;         // rad kept from the separation limits, >= 0
   int max_consecutive_cycle_timeouts = 3;  // >= 0
   double timeout_s = 20.0;                 // > 0: the run ends with kTimeout
-  DiamondStopAction stop_action = DiamondStopAction::kQuickStop;
+  StopAction stop_action = StopAction::kQuickStop;
   bool keep_samples = true;      // false: no per-cycle log (long real-time runs)
   std::string Validate() const;  // empty when usable, else every bad field and its value
 };
 
-enum class DiamondLoopOutcome {
-  kCompleted,   // the law finished (line followed, servo converged)
-  kDriveFault,  // a drive fault or a lost link
-  kLawStop,     // the law stopped (marker lost, camera stale, singular, not settled)
-  kLimit,       // joint, separation or workspace limit, or the RCM closure
-  kTimeout,
-  kNotStarted,  // could not select the drive mode
-};
-const char* ToString(DiamondLoopOutcome outcome);
+// How a run ended (control/common/loop.h): kLimit is a joint, separation or workspace limit or
+// the RCM closure; kLawStop the law's kStop (marker lost, camera stale, singular, not settled).
+using DiamondLoopOutcome = LoopOutcome;
 
 struct DiamondLoopSample {
   double time_s = 0.0;
@@ -137,7 +132,6 @@ class DiamondControlLoop {
   bool SetCommand(const Eigen::Vector2d& q_command);
   void HoldAndSettle(Eigen::Vector2d* q_command);
   void SafeState(DiamondLoopReport* report);
-  std::string DriveFaults(DiamondLoopReport* report) const;
   // Empty when q (and its forward kinematics) is inside the margins; otherwise why not.
   std::string CheckLimits(const Eigen::Vector2d& q, robots::DiamondData* data) const;
 
@@ -146,6 +140,7 @@ class DiamondControlLoop {
   robots::DiamondModel model_;
   DiamondLoopOptions options_;
   std::vector<hal::MotorDrive*> drives_;
+  std::unique_ptr<DriveSupervisor> supervisor_;
 };
 
 // CSV of the samples (docs/diamond-control.md). Throws std::runtime_error naming the file when

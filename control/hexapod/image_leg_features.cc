@@ -71,13 +71,24 @@ ImageLegFeatureSource::ImageLegFeatureSource(
   if (!X_CB_.matrix().allFinite()) add("X_CB: not finite");
   if (const std::string m = options_.Validate(); !m.empty()) add("options: " + m);
   if (!message.empty()) throw std::invalid_argument("ImageLegFeatureSource: " + message);
-  if (options_.asynchronous) worker_ = std::thread([this] { Worker(); });
+  if (options_.asynchronous) {
+    worker_ = std::make_unique<LatestFrameWorker<LegFeatureFrame>>(
+        [this](LegFeatureFrame* frame, const std::atomic<bool>& stopping) {
+          return Produce(frame, stopping);
+        });
+  }
 }
 
 ImageLegFeatureSource::~ImageLegFeatureSource() {
-  stop_ = true;
-  q_ready_.notify_all();
-  if (worker_.joinable()) worker_.join();
+  if (worker_) {
+    {
+      // Under the mutex: the worker may be about to wait for the first q.
+      std::lock_guard<std::mutex> lock(mutex_);
+      worker_->RequestStop();
+    }
+    q_ready_.notify_all();
+    worker_->Stop();
+  }
 }
 
 std::array<LegObservation, kHexapodLegs> ImageLegFeatureSource::last_observations() const {
@@ -107,43 +118,35 @@ void ImageLegFeatureSource::RecordError(const std::string& text,
   spdlog::warn("leg features: {}", text);
 }
 
-void ImageLegFeatureSource::Worker() {
-  LegFeatureFrame frame;
-  for (;;) {
-    Vector6d q;
-    {
-      // The first frame waits for the first q (the predictions need it).
-      std::unique_lock<std::mutex> lock(mutex_);
-      q_ready_.wait(lock, [this] { return have_q_ || stop_; });
-      if (stop_) return;
-      q = q_latest_;
-    }
-    if (!GrabAndProcess(std::chrono::milliseconds(options_.grab_timeout_ms), q, &frame)) {
-      // A camera in fault answers at once: do not spin on it.
-      if (camera_->lifecycle() != common::DeviceLifecycle::kActive) {
-        std::this_thread::sleep_for(std::chrono::milliseconds(20));
-      }
-      if (stop_) return;
-      continue;
-    }
-    std::lock_guard<std::mutex> lock(mutex_);
-    published_ = frame;
+bool ImageLegFeatureSource::Produce(LegFeatureFrame* frame, const std::atomic<bool>& stopping) {
+  Vector6d q;
+  {
+    // The first frame waits for the first q (the predictions need it).
+    std::unique_lock<std::mutex> lock(mutex_);
+    q_ready_.wait(lock, [&] { return have_q_ || stopping; });
+    if (stopping) return false;
+    q = q_latest_;
   }
+  if (GrabAndProcess(std::chrono::milliseconds(options_.grab_timeout_ms), q, frame)) return true;
+  // A camera in fault answers at once: do not spin on it.
+  if (camera_->lifecycle() != common::DeviceLifecycle::kActive) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return false;
 }
 
 bool ImageLegFeatureSource::Poll(common::Duration now, LegFeatureFrame* frame) {
   const Vector6d q = leg_lengths_();
-  if (options_.asynchronous) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    q_latest_ = q;
-    if (!have_q_) {
-      have_q_ = true;
-      q_ready_.notify_all();
+  if (worker_) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      q_latest_ = q;
+      if (!have_q_) {
+        have_q_ = true;
+        q_ready_.notify_all();
+      }
     }
-    if (published_.sequence <= handed_over_) return false;
-    *frame = published_;
-    handed_over_ = published_.sequence;
-    return true;
+    return worker_->Take(frame);
   }
   if (period_ == common::Duration(0)) {
     const double fps = camera_->format().fps;

@@ -20,7 +20,8 @@
 //    (blocking up to grab_timeout) and extracts the edges; Poll() only hands over the newest
 //    finished frame and the current leg lengths, so a camera that is slow to deliver never
 //    delays a drive cycle. The leg-length provider is still called from Poll() (the loop's
-//    thread); the worker uses the latest q it was given.
+//    thread); the worker uses the latest q it was given. The worker is control/common's
+//    LatestFrameWorker, the same as the DIAMOND marker's (camera_marker_source.h).
 // A camera error is counted and reported (last_error()); the loop sees no frame and holds on its
 // stale-camera rule, the safe reaction. The frame's timestamp is the capture time the camera
 // reports.
@@ -41,6 +42,7 @@
 #include <thread>
 #include <vector>
 
+#include "control/common/latest_frame.h"
 #include "control/hexapod/servo_loop.h"
 #include "hal/camera/camera.h"
 #include "robots/hexapod/hexapod_model.h"
@@ -111,7 +113,8 @@ class ImageLegFeatureSource final : public LegFeatureSource {
   // Grabs one frame (waiting at most `timeout`) and, when there is one, extracts the legs with the
   // leg lengths q into *frame. Returns true when *frame holds a new frame.
   bool GrabAndProcess(std::chrono::milliseconds timeout, const Vector6d& q, LegFeatureFrame* frame);
-  void Worker();
+  // Asynchronous mode, on the worker: waits for the first q, then GrabAndProcess.
+  bool Produce(LegFeatureFrame* frame, const std::atomic<bool>& stopping);
   void RecordError(const std::string& text, uint64_t ImageLegFeatureCounters::*counter);
 
   hal::Camera* camera_;
@@ -135,14 +138,11 @@ class ImageLegFeatureSource final : public LegFeatureSource {
   std::array<vision::hexapod::LegObservation, kHexapodLegs> observations_{};
   std::string last_error_;
   ImageLegFeatureCounters counters_;
-  // Asynchronous mode: the newest q from Poll(), the newest finished frame.
+  // Asynchronous mode: the newest q from Poll() for the worker (control/common/latest_frame.h).
   Vector6d q_latest_ = Vector6d::Zero();
   bool have_q_ = false;
-  LegFeatureFrame published_;
-  uint64_t handed_over_ = 0;  // sequence of the last frame Poll() returned
   std::condition_variable q_ready_;
-  std::atomic<bool> stop_{false};
-  std::thread worker_;
+  std::unique_ptr<LatestFrameWorker<LegFeatureFrame>> worker_;  // last: uses everything above
 };
 
 }  // namespace kinevis::control

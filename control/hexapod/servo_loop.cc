@@ -13,12 +13,9 @@
 #include "common/clock.h"
 #include "common/config_error.h"
 #include "hal/common/error.h"
-#include "hal/drive/cia402_can_drive.h"
 #include "vision/plot/line_plot.h"
 
 namespace kinevis::control {
-namespace {}  // namespace
-
 std::string GroundTruthFeatureOptions::Validate() const {
   common::Problems p;
   p.Positive("fps", fps);
@@ -76,6 +73,7 @@ std::string ServoLoopOptions::Validate() const {
   p.Positive("max_leg_velocity", max_leg_velocity);
   p.NonNegative("stroke_margin", stroke_margin);
   p.Positive("stop_deceleration", stop_deceleration);
+  p.Positive("max_command_lead", max_command_lead);
   if (min_visible_legs < 3 || min_visible_legs > kHexapodLegs) {
     p.Add("min_visible_legs", min_visible_legs, "must be in 3..6");
   }
@@ -110,20 +108,15 @@ const char* ToString(ServoLoopState state) {
   return "?";
 }
 
-const char* ToString(ServoLoopOutcome outcome) {
+const char* ServoOutcomeName(LoopOutcome outcome) {
   switch (outcome) {
-    case ServoLoopOutcome::kConverged:
+    case LoopOutcome::kCompleted:
       return "converged";
-    case ServoLoopOutcome::kStrokeLimit:
+    case LoopOutcome::kLimit:
       return "stroke limit";
-    case ServoLoopOutcome::kDriveFault:
-      return "drive fault";
-    case ServoLoopOutcome::kTimeout:
-      return "timeout";
-    case ServoLoopOutcome::kNotStarted:
-      return "not started";
+    default:
+      return ToString(outcome);
   }
-  return "?";
 }
 
 ServoLoop::ServoLoop(hal::DriveBus* bus, common::Clock* clock, LegFeatureSource* source,
@@ -143,114 +136,77 @@ ServoLoop::ServoLoop(hal::DriveBus* bus, common::Clock* clock, LegFeatureSource*
   const std::string model_problems = model.Validate();
   if (!model_problems.empty()) add("model: " + model_problems);
   if (!message.empty()) throw std::invalid_argument("ServoLoop: " + message);
+  DriveSupervisorOptions supervision;
+  supervision.cycle_period_s = options_.cycle_period_s;
+  supervision.max_consecutive_cycle_timeouts = options_.max_consecutive_cycle_timeouts;
+  supervision.stop_action = options_.stop_action;
+  supervision.axis_name = "leg";
+  supervision.first_axis_number = 0;
+  supervisor_ = std::make_unique<DriveSupervisor>(bus_, clock_, kHexapodLegs, supervision);
 }
 
-void ServoLoop::SetRates(const Vector6d& q_dot, Vector6d* s_target) {
+bool ServoLoop::SetRates(const Vector6d& q_dot, const Vector6d& s, Vector6d* s_target) {
+  bool lead_limited = false;
   for (int j = 0; j < kHexapodLegs; ++j) {
     std::error_code ec;
     if (options_.command_mode == DriveCommandMode::kVelocity) {
       ec = drives_[j]->SetTargetVelocity(q_dot[j]);
     } else {
-      (*s_target)[j] += q_dot[j] * options_.cycle_period_s;
-      ec = drives_[j]->SetTargetPosition((*s_target)[j]);
+      double target = (*s_target)[j] + q_dot[j] * options_.cycle_period_s;
+      const double lead = target - s[j];
+      if (std::abs(lead) > options_.max_command_lead) {
+        target = s[j] + std::copysign(options_.max_command_lead, lead);
+        lead_limited = true;
+      }
+      (*s_target)[j] = target;
+      ec = drives_[j]->SetTargetPosition(target);
     }
     // Refusals (not active) show as a fault at the next Cycle(); nothing to do here.
     (void)ec;
   }
+  return lead_limited;
 }
 
 void ServoLoop::StopAndSettle(Vector6d* s_target) {
-  const common::Duration period = common::FromSeconds(options_.cycle_period_s);
-  const common::Duration end = clock_->Now() + common::FromSeconds(1.0);
-  common::Duration next = clock_->Now() + period;
-  SetRates(Vector6d::Zero(), s_target);
-  while (clock_->Now() < end) {
-    clock_->SleepUntil(next);
-    next += period;
-    if (bus_->Cycle()) return;
-    bool still = true;
-    for (hal::MotorDrive* d : drives_) still = still && std::abs(d->status().velocity) < 1e-6;
-    if (still) return;
-    SetRates(Vector6d::Zero(), s_target);
-  }
-}
-
-void ServoLoop::StopAllOnFault(ServoLoopReport* report) {
-  std::ostringstream out;
-  for (int j = 0; j < kHexapodLegs; ++j) {
-    const hal::DriveStatus st = drives_[j]->status();
-    if (drives_[j]->lifecycle() != common::DeviceLifecycle::kFault &&
-        st.fault_source == hal::DriveFaultSource::kNone) {
-      continue;
-    }
-    if (report->faulted_drive < 0) report->faulted_drive = j;
-    out << (out.tellp() > 0 ? "; " : "") << "leg " << j << " drive " << drives_[j]->name() << ": "
-        << (st.fault_source == hal::DriveFaultSource::kLink ? "link lost (heartbeat)"
-                                                            : "device fault")
-        << ", error code 0x" << std::hex << st.error_code << std::dec;
-    if (const auto* host = dynamic_cast<const hal::Cia402HostDrive*>(drives_[j])) {
-      if (!host->last_error_text().empty()) out << " (" << host->last_error_text() << ")";
-    }
-  }
-  // The bus has already put the faulted drive in a safe state and (quick_stop_all_on_fault)
-  // asked the others to quick-stop; make sure of it here, whatever the bus's policy: quick stop
-  // (or disable) every drive, then keep cycling until every leg is at rest, since a drive only
-  // receives its controlword with the cycles.
-  for (hal::MotorDrive* d : drives_) {
-    std::error_code ec;
-    if (options_.stop_action == StopAction::kDisable) {
-      if (d->lifecycle() != common::DeviceLifecycle::kFault) ec = d->Disable();
-    } else if (d->lifecycle() == common::DeviceLifecycle::kActive) {
-      ec = d->QuickStop();
-    }
-    if (ec) spdlog::warn("servo loop: stopping {} failed: {}", d->name(), ec.message());
-  }
-  const common::Duration period = common::FromSeconds(options_.cycle_period_s);
-  const common::Duration end = clock_->Now() + common::FromSeconds(1.0);
-  for (common::Duration next = clock_->Now() + period; clock_->Now() < end; next += period) {
-    clock_->SleepUntil(next);
-    bus_->Cycle();  // keeps reporting the fault; the stop is what matters now
-    bool still = true;
-    for (hal::MotorDrive* d : drives_) still = still && std::abs(d->status().velocity) < 1e-6;
-    if (still) break;
-  }
-  report->message += out.str();
+  // Zero rates until every leg is at rest (at most 1 s). In CSP the set-points stay where they
+  // are (within the lead of the readings): the drives come to rest on them.
+  bool cycled = false;
+  supervisor_->Settle([&] {
+    if (cycled && supervisor_->AllAtRest()) return false;
+    Vector6d s;
+    supervisor_->Positions(s.data());
+    SetRates(Vector6d::Zero(), s, s_target);
+    cycled = true;
+    return true;
+  });
 }
 
 ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>& observer) {
   ServoLoopReport report;
   const double period_s = options_.cycle_period_s;
   const common::Duration period = common::FromSeconds(period_s);
-  report.samples.reserve(static_cast<size_t>(options_.timeout_s / period_s) + 16);
+  const size_t capacity = static_cast<size_t>(options_.timeout_s / period_s) + 16;
+  report.samples.reserve(capacity);
+  CycleTimingRecorder timing(capacity);
   law_->Reset();
 
   const hal::DriveMode mode = options_.command_mode == DriveCommandMode::kVelocity
                                   ? hal::DriveMode::kCyclicSynchronousVelocity
                                   : hal::DriveMode::kCyclicSynchronousPosition;
   Vector6d s_target;
-  for (int j = 0; j < kHexapodLegs; ++j) {
-    s_target[j] = drives_[j]->status().position;
-    if (mode == hal::DriveMode::kCyclicSynchronousVelocity) {
-      drives_[j]->SetTargetVelocity(0.0);
-    } else {
-      drives_[j]->SetTargetPosition(s_target[j]);
-    }
-    if (const std::error_code ec = drives_[j]->SetMode(mode)) {
-      report.outcome = ServoLoopOutcome::kDriveFault;
-      report.faulted_drive = j;
-      report.message = "leg " + std::to_string(j) + " drive " + drives_[j]->name() +
-                       ": cannot select " + hal::ToString(mode) + ": " + ec.message();
-      return report;
-    }
+  supervisor_->Positions(s_target.data());
+  report.message = supervisor_->SelectMode(mode, &report.faulted_drive);
+  if (!report.message.empty()) {
+    report.outcome = ServoLoopOutcome::kNotStarted;
+    return report;
   }
 
   const common::Duration start = clock_->Now();
-  common::Duration next = start;
+  DeadlineGrid grid(clock_, period, start);
   common::Duration last_frame_time = start;
   bool have_frame = false;
   double converged_since = -1;
   bool converged_by_error = true;
-  int consecutive_timeouts = 0;
   Vector6d filtered_displacement = Vector6d::Zero();
   bool have_displacement = false;
   common::Duration last_displacement_time = start;
@@ -262,44 +218,32 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
   const double q_max = model_.leg_length_max - options_.stroke_margin;
 
   for (;;) {
-    next += period;
-    clock_->SleepUntil(next);
-    const common::Duration now = clock_->Now();
+    const DeadlineGrid::Wake wake = grid.Next();
+    const common::Duration now = wake.time;
     const double t = common::ToSeconds(now - start);
+    timing.Wake(wake);
     ++report.cycles;
 
     // 1. The bus: a fault of any drive stops all six. A cycle whose answers did not all come in
     // time (the drives keep last cycle's values; their heartbeats are supervised separately) is
     // tolerated max_consecutive_cycle_timeouts times in a row, then it is a fault too.
-    const std::error_code cycle_error = bus_->Cycle();
-    bool faulted = false;
-    if (cycle_error == hal::Errc::kTimeout) {
-      ++report.cycle_timeouts;
-      faulted = ++consecutive_timeouts > options_.max_consecutive_cycle_timeouts;
-    } else {
-      consecutive_timeouts = 0;
-      faulted = static_cast<bool>(cycle_error);
-    }
-    for (hal::MotorDrive* d : drives_) {
-      faulted = faulted || d->lifecycle() == common::DeviceLifecycle::kFault;
-    }
-    if (faulted) {
+    const SupervisedCycle cycle = supervisor_->Cycle();
+    const common::Duration io_end = clock_->Now();
+    timing.Io(common::ToSeconds(io_end - now));
+    report.cycle_timeouts = supervisor_->cycle_timeouts();
+    if (cycle.fault) {
+      // The bus has already put the faulted drive in a safe state and (quick_stop_all_on_fault)
+      // asked the others to quick-stop; the supervisor makes sure of it, whatever the bus's
+      // policy.
       report.outcome = ServoLoopOutcome::kDriveFault;
-      report.message = std::string("drive fault at t = ") + std::to_string(t) + " s (bus " +
-                       bus_->name() + ": " +
-                       (cycle_error ? cycle_error.message() : std::string("no error")) +
-                       (consecutive_timeouts > options_.max_consecutive_cycle_timeouts
-                            ? ", " + std::to_string(consecutive_timeouts) +
-                                  " cycles in a row without every drive's answer"
-                            : std::string()) +
-                       "): ";
-      StopAllOnFault(&report);
+      report.message = supervisor_->FaultMessage(cycle, t, &report.faulted_drive);
+      if (const std::string p = supervisor_->SafeStop(); !p.empty()) report.message += "; " + p;
       spdlog::error("servo loop: {}", report.message);
       break;
     }
 
     Vector6d s;
-    for (int j = 0; j < kHexapodLegs; ++j) s[j] = drives_[j]->status().position;
+    supervisor_->Positions(s.data());
     const Vector6d q = robots::LegLengthsFromJointPositions(model_, s);
 
     // 2. A camera frame: run the law.
@@ -401,20 +345,24 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
     }
     if (report.stroke_leg >= 0) q_dot.setZero();
 
-    SetRates(q_dot, &s_target);
+    if (SetRates(q_dot, s, &s_target)) ++report.lead_limited_cycles;
     sample.time_s = t;
     sample.q = q;
     sample.q_dot = q_dot;
+    sample.q_command = options_.command_mode == DriveCommandMode::kPosition
+                           ? robots::LegLengthsFromJointPositions(model_, s_target)
+                           : q;
+    timing.Compute(common::ToSeconds(clock_->Now() - io_end));
     report.samples.push_back(sample);
     if (observer) observer(report.samples.back());
 
     if (report.stroke_leg >= 0) {
-      report.outcome = ServoLoopOutcome::kStrokeLimit;
+      report.outcome = ServoLoopOutcome::kLimit;
       spdlog::warn("servo loop: {}", report.message);
       break;
     }
     if (converged_since >= 0 && t - converged_since >= options_.convergence_dwell_s) {
-      report.outcome = ServoLoopOutcome::kConverged;
+      report.outcome = ServoLoopOutcome::kCompleted;
       std::ostringstream out;
       if (converged_by_error) {
         out << "converged: |e| <= " << options_.convergence_threshold;
@@ -440,8 +388,9 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
   report.duration_s = common::ToSeconds(clock_->Now() - start);
   report.final_error_norm = sample.error_norm;
   Vector6d s;
-  for (int j = 0; j < kHexapodLegs; ++j) s[j] = drives_[j]->status().position;
+  supervisor_->Positions(s.data());
   report.final_q = robots::LegLengthsFromJointPositions(model_, s);
+  report.timing = timing.Statistics(period_s, grid.missed_deadlines());
   return report;
 }
 

@@ -6,6 +6,9 @@
 // camera frame and holds the last leg rates between frames, and commands them in cyclic
 // synchronous velocity (CSV) or, by integrating them, cyclic synchronous position (CSP).
 //
+// The cycles are paced on a DeadlineGrid and the drives supervised by a DriveSupervisor
+// (control/common/): the same pacing, fault detection and safe stop as the DIAMOND's loop.
+//
 // Safety, checked every cycle (never by exceptions):
 //  - drive fault or heartbeat loss (DriveBus::Cycle() error, or a drive in fault): every drive
 //    is quick-stopped (or disabled), the run ends with kDriveFault naming the drive and cause;
@@ -14,16 +17,21 @@
 //  - stroke: a leg whose predicted stopping point (current length + commanded rate over two
 //    cycles + braking distance at stop_deceleration) would leave
 //    [leg_length_min + stroke_margin, leg_length_max − stroke_margin] stops everything: zero
-//    rates are commanded, the run ends with kStrokeLimit naming the leg. Nothing beyond the
-//    limits is ever commanded;
+//    rates are commanded, the run ends with kLimit naming the leg. Nothing beyond the limits is
+//    ever commanded;
 //  - velocity: leg rates are scaled uniformly so that the fastest is at most max_leg_velocity
 //    (the direction of motion is kept);
+//  - following (CSP): the integrated set-points never lead the readings by more than
+//    max_command_lead. When the drives cannot follow (their own velocity limit, a loaded host) a
+//    set-point integrating the law's rates would run away from the legs — windup — and the legs
+//    would overshoot once they catch up. Held at the readings plus the lead, CSP stays a rate
+//    command on where the legs are (the DIAMOND's loop does the same);
 //  - a leg lost from the image (fewer than min_visible_legs visible) holds: zero rates for all
 //    legs until the legs are seen again (counted and reported);
 //  - a stale camera (no frame for stale_camera_timeout_s) holds likewise;
 //  - the law refusing (too few legs, rank < 6, bad input) holds likewise;
 //  - convergence: ‖e‖ <= convergence_threshold (or, when set, the remaining displacement below
-//    convergence_translation and convergence_rotation) for convergence_dwell_s -> kConverged;
+//    convergence_translation and convergence_rotation) for convergence_dwell_s -> kCompleted;
 //  - timeout_s -> kTimeout.
 // Every ending commands zero rates and runs cycles until the legs are at rest (at most 1 s).
 //
@@ -34,11 +42,15 @@
 #include <Eigen/Geometry>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <random>
 #include <string>
 #include <vector>
 
 #include "common/clock.h"
+#include "control/common/drive_supervisor.h"
+#include "control/common/fixed_rate.h"
+#include "control/common/loop.h"
 #include "control/hexapod/leg_servo.h"
 #include "hal/drive/motor_drive.h"
 #include "robots/hexapod/hexapod_model.h"
@@ -99,14 +111,17 @@ class GroundTruthLegFeatureSource final : public LegFeatureSource {
 };
 
 enum class DriveCommandMode { kVelocity, kPosition };  // CSV, or CSP by integrating q̇
-enum class StopAction { kQuickStop, kDisable };
 
 struct ServoLoopOptions {
   double cycle_period_s = 0.004;  // drive cycle, > 0
   DriveCommandMode command_mode = DriveCommandMode::kVelocity;
-  double max_leg_velocity = 0.05;       // m/s, > 0
-  double stroke_margin = 0.001;         // m, >= 0, kept from both stroke ends
-  double stop_deceleration = 0.5;       // m/s^2, > 0: braking assumed for stopping distances
+  double max_leg_velocity = 0.05;  // m/s, > 0
+  double stroke_margin = 0.001;    // m, >= 0, kept from both stroke ends
+  double stop_deceleration = 0.5;  // m/s^2, > 0: braking assumed for stopping distances
+  // CSP: how far (m, > 0) the integrated set-point may lead a leg's reading (anti-windup).
+  // 5 mm is 25 cycles at 5 cm/s: never reached by drives that follow, reached at once by one
+  // that cannot.
+  double max_command_lead = 0.005;
   int min_visible_legs = 6;             // 3..6; fewer visible -> hold
   double stale_camera_timeout_s = 0.1;  // no frame for this long -> hold, > 0
   double convergence_threshold = 1e-4;  // on ‖e‖, > 0
@@ -140,8 +155,12 @@ enum class ServoLoopState {
 };
 const char* ToString(ServoLoopState state);
 
-enum class ServoLoopOutcome { kConverged, kStrokeLimit, kDriveFault, kTimeout, kNotStarted };
-const char* ToString(ServoLoopOutcome outcome);
+// How a run ended (control/common/loop.h): kCompleted when converged, kLimit at a stroke limit,
+// kDriveFault, kTimeout, kNotStarted (a drive refused the mode).
+using ServoLoopOutcome = LoopOutcome;
+// The servo's words for an outcome: "converged" (kCompleted), "stroke limit" (kLimit), else
+// ToString(outcome).
+const char* ServoOutcomeName(LoopOutcome outcome);
 
 // One loop cycle, as logged.
 struct ServoLoopSample {
@@ -155,6 +174,8 @@ struct ServoLoopSample {
   LegMask visible{};
   Vector6d q = Vector6d::Zero();      // leg lengths (m) = q0 + drive positions
   Vector6d q_dot = Vector6d::Zero();  // commanded leg rates (m/s), after the safety layer
+  // Commanded leg lengths (m): q0 + the CSP set-points; in CSV the readings q.
+  Vector6d q_command = Vector6d::Zero();
   ServoLoopState state = ServoLoopState::kWaitFirstFrame;
   bool new_frame = false;
 };
@@ -171,9 +192,11 @@ struct ServoLoopReport {
   uint64_t cycles = 0, frames = 0, law_steps = 0;
   uint64_t hold_cycles_leg_lost = 0, hold_cycles_stale_camera = 0, hold_cycles_law = 0;
   uint64_t velocity_scaled_cycles = 0;
-  uint64_t cycle_timeouts = 0;  // cycles in which not every drive answered in time
-  LegMask legs_lost{};          // legs that were hidden at least once
+  uint64_t lead_limited_cycles = 0;  // CSP set-points held at the readings + max_command_lead
+  uint64_t cycle_timeouts = 0;       // cycles in which not every drive answered in time
+  LegMask legs_lost{};               // legs that were hidden at least once
   Vector6d final_q = Vector6d::Zero();
+  PeriodStatistics timing;  // of the cycles: periods, lateness, bus I/O and compute time
   std::vector<ServoLoopSample> samples;  // every cycle
 };
 
@@ -191,9 +214,10 @@ class ServoLoop {
   ServoLoopReport Run(const std::function<void(const ServoLoopSample&)>& observer = {});
 
  private:
-  void SetRates(const Vector6d& q_dot, Vector6d* s_target);
+  // Commands the rates: CSV directly; CSP integrated into *s_target, held within
+  // max_command_lead of the readings s. Returns true when the lead limit acted.
+  bool SetRates(const Vector6d& q_dot, const Vector6d& s, Vector6d* s_target);
   void StopAndSettle(Vector6d* s_target);
-  void StopAllOnFault(ServoLoopReport* report);
 
   hal::DriveBus* bus_;
   common::Clock* clock_;
@@ -202,6 +226,7 @@ class ServoLoop {
   LegServo* law_;
   ServoLoopOptions options_;
   std::vector<hal::MotorDrive*> drives_;
+  std::unique_ptr<DriveSupervisor> supervisor_;
 };
 
 // CSV of the samples (control/README.md). Throws std::runtime_error naming the file when it

@@ -125,7 +125,7 @@ class Cia402HostDrive : public MotorDrive {
   // Why the last command failed or the drive faulted, naming the drive:
   // "leg3 (virtual:hexapod node 3): heartbeat lost: none for 60 ms (consumer time 60 ms)".
   // Empty while nothing has gone wrong.
-  const std::string& last_error_text() const { return last_error_text_; }
+  std::string last_error_text() const override { return last_error_text_; }
   const DriveIdentity& identity() const { return identity_; }
   const Cia402DriveOptions& options() const { return options_; }
   // The mode sent to the drive (status().mode is what the drive reports).

@@ -101,6 +101,9 @@ class MotorDrive {
   // The values of the last completed cycle.
   virtual DriveStatus status() const = 0;
   virtual DriveCounters counters() const = 0;
+  // Why the last command failed or the drive faulted, in one line naming the drive and the
+  // cause; empty while nothing has gone wrong.
+  virtual std::string last_error_text() const = 0;
 };
 
 // A group of drives exchanged together in one cycle (one CAN bus with a SYNC, one RS485 line).

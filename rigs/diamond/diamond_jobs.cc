@@ -3,12 +3,8 @@
 #include "rigs/diamond/diamond_jobs.h"
 
 #include <spdlog/spdlog.h>
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -16,15 +12,14 @@
 #include <fstream>
 #include <limits>
 #include <memory>
-#include <mutex>
 #include <stdexcept>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "calibration/diamond/diamond_calibration_io.h"
 #include "common/stopwatch.h"
 #include "common/units.h"
+#include "control/diamond/camera_marker_source.h"
 #include "hal/common/error.h"
 #include "hal/common/realtime.h"
 #include "hal/drive/rs485_drive.h"
@@ -383,86 +378,6 @@ void CheckLine(const robots::DiamondModel& model, const control::DiamondLine& li
   }
 }
 
-// The camera in a worker thread, for rigs on a real clock: grabbing (a render, or the wait for a
-// real camera's frame) and detecting never delay a control cycle. Each Poll() hands over the
-// newest frame processed since the last one.
-class AsyncMarkerSource final : public control::MarkerFeatureSource {
- public:
-  AsyncMarkerSource(hal::Camera* camera, const std::string& name, common::Clock* clock,
-                    const vision::MarkerDetectorOptions& options)
-      : camera_(camera),
-        name_(name),
-        clock_(clock),
-        inner_(
-            [this](common::Duration, vision::ImageView8* view, common::Duration* stamp) {
-              const std::error_code ec = camera_->Grab(&image_, 100ms);
-              if (ec) {
-                if (ec != hal::Errc::kTimeout) Fail("camera " + name_ + ": " + ec.message());
-                return false;
-              }
-              if (image_.format != hal::PixelFormat::kMono8) {
-                Fail("camera " + name_ + ": frames are not mono8");
-                return false;
-              }
-              *view = vision::ImageView8{image_.data.data(), image_.width, image_.height,
-                                         image_.stride};
-              *stamp = image_.timestamp;
-              return true;
-            },
-            options) {
-    thread_ = std::thread([this] {
-      // Below the control loop and the drives' line: on a loaded machine the camera waits, not
-      // the cycle (a failure to renice is harmless).
-      (void)::setpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid)), 10);
-      while (running_) {
-        control::MarkerFrame frame;
-        if (inner_.Poll(clock_->Now(), &frame)) {
-          std::lock_guard<std::mutex> lock(mutex_);
-          latest_ = frame;
-          ++published_;
-        }
-      }
-    });
-  }
-  ~AsyncMarkerSource() override {
-    running_ = false;
-    thread_.join();
-  }
-  AsyncMarkerSource(const AsyncMarkerSource&) = delete;
-  AsyncMarkerSource& operator=(const AsyncMarkerSource&) = delete;
-
-  bool Poll(common::Duration, control::MarkerFrame* frame) override {
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (published_ == delivered_) return false;
-    *frame = latest_;
-    delivered_ = published_;
-    return true;
-  }
-  std::string error() const {
-    std::lock_guard<std::mutex> lock(mutex_);
-    return error_;
-  }
-
- private:
-  void Fail(const std::string& text) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (error_.empty()) error_ = text;
-    running_ = false;  // a failed camera stays failed: the law sees it go stale and stops
-  }
-
-  hal::Camera* camera_;
-  std::string name_;
-  common::Clock* clock_;
-  hal::Image image_;
-  mutable std::mutex mutex_;
-  std::string error_;
-  control::MarkerFrame latest_;
-  uint64_t published_ = 0, delivered_ = 0;
-  std::atomic<bool> running_{true};
-  control::DetectedMarkerSource inner_;
-  std::thread thread_;
-};
-
 }  // namespace
 
 DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
@@ -521,35 +436,11 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
   // The camera: on a stepped simulated clock polled once per cycle without waiting (a frame is
   // rendered and processed when one is due; simulated time stands still meanwhile); on a real
   // clock in a worker thread.
-  hal::Image image;
-  hal::Camera& cam = rig->camera();
-  std::unique_ptr<control::MarkerFeatureSource> camera_source;
-  AsyncMarkerSource* async = nullptr;
-  if (rig->real_time()) {
-    auto a = std::make_unique<AsyncMarkerSource>(&cam, rig->camera_name(), &rig->clock(),
-                                                 rig->detector_options());
-    async = a.get();
-    camera_source = std::move(a);
-  } else {
-    camera_source = std::make_unique<control::DetectedMarkerSource>(
-        [&](common::Duration, vision::ImageView8* view, common::Duration* stamp) {
-          const std::error_code ec = cam.Grab(&image, 0ms);
-          if (ec) {
-            if (ec != hal::Errc::kTimeout && run.camera_error.empty()) {
-              run.camera_error = "camera " + rig->camera_name() + ": " + ec.message();
-            }
-            return false;
-          }
-          if (image.format != hal::PixelFormat::kMono8) {
-            run.camera_error = "camera " + rig->camera_name() + ": frames are not mono8";
-            return false;
-          }
-          *view = vision::ImageView8{image.data.data(), image.width, image.height, image.stride};
-          *stamp = image.timestamp;
-          return true;
-        },
-        rig->detector_options());
-  }
+  control::CameraMarkerSourceOptions camera_options;
+  camera_options.detector = rig->detector_options();
+  camera_options.asynchronous = rig->real_time();
+  auto camera_source =
+      std::make_unique<control::CameraMarkerSource>(&rig->camera(), camera_options);
   control::MarkerFeatureSource& source = *camera_source;
 
   std::vector<Eigen::Vector2d> measured, truth;
@@ -633,7 +524,7 @@ DiamondServoRun ServoDiamond(DiamondRig* rig, const DiamondServoOptions& o) {
   // frame, and the statistics) runs no bus cycles, and enabled drives would fault on the lost
   // heartbeat meanwhile and be found in fault by the next job.
   rig->Release();
-  if (async != nullptr && run.camera_error.empty()) run.camera_error = async->error();
+  if (run.camera_error.empty()) run.camera_error = camera_source->error();
   camera_source.reset();  // the worker stops before the rig's camera is used again
   run.measured_points = static_cast<int>(measured.size());
   run.measured_straightness = control::Straightness(measured);

@@ -16,6 +16,8 @@
 #include "hal/mock/rs485_drive_sim.h"
 #include "hal/serial/pty_pair.h"
 #include "sim/diamond_world.h"
+#include "tests/utilities/diamond_seed_camera.h"
+#include "tests/utilities/sim_step_clock.h"
 #include "vision/camera/pinhole_camera.h"
 #include "vision/render/renderer.h"
 #include "vision/render/scenes/diamond_marker_scene.h"
@@ -191,17 +193,7 @@ TEST(DiamondControlLoopTest, ADriveFaultStopsBothDrivesAndNamesTheDriveAndCode) 
   EXPECT_LT((world.plant().q - q0).norm(), 1e-4);
 }
 
-// A clock that steps a bare drive simulator (no world) whenever the host waits.
-class SimStepClock final : public common::Clock {
- public:
-  common::SimulatedClock time;
-  hal::Rs485DriveSim* sim = nullptr;
-  common::Duration Now() const override { return time.Now(); }
-  void SleepUntil(common::Duration deadline) override {
-    if (deadline > time.Now()) time.AdvanceTo(deadline);
-    if (sim) sim->Step();
-  }
-};
+using kinevis::testing::SimStepClock;  // steps the bare drive simulator whenever the host waits
 
 TEST(DiamondControlLoopTest, ALostLinkStopsTheRobotAndIsReportedAsSuch) {
   hal::PtyPair pty;
@@ -248,12 +240,7 @@ TEST(DiamondControlLoopTest, ALostLinkStopsTheRobotAndIsReportedAsSuch) {
 class RenderedCamera {
  public:
   explicit RenderedCamera(sim::DiamondWorld* world) : world_(world) {
-    vision::PinholeBrownParameters p;
-    p.width = 1280;
-    p.height = 640;
-    p.fx = p.fy = 1000.0;
-    p.cx = 639.5;
-    p.cy = 319.5;
+    const vision::PinholeBrownParameters p = kinevis::testing::DiamondSeedCamera();
     camera_ = std::make_unique<vision::PinholeBrownCamera>(p);
     vision::render::RenderOptions o;
     o.supersampling = 4;

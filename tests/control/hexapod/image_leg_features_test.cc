@@ -339,7 +339,7 @@ TEST(ImageLegFeatureSourceTest, ServoLoopConvergesOnFeaturesFromRenderedImages) 
   std::printf("image-feature servo: %s, |e| = %.3g, %.2f s, %llu frames\n",
               ToString(report.outcome), report.final_error_norm, report.duration_s,
               static_cast<unsigned long long>(report.frames));
-  ASSERT_EQ(report.outcome, ServoLoopOutcome::kConverged) << report.message;
+  ASSERT_EQ(report.outcome, LoopOutcome::kCompleted) << report.message;
   const sim::HexapodPlantState state = w.world().plant();
   const double position_error = (state.X_BP.translation() - target.translation()).norm();
   std::printf("platform %.3f mm from the target\n", 1e3 * position_error);

@@ -3,6 +3,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -44,9 +45,11 @@ double RotationError(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
 // true A_j in C (a perfect calibration), the loop with the nominal model's q0 and strokes.
 class Rig {
  public:
-  explicit Rig(GroundTruthFeatureOptions features = {}) {
+  // drive_max_velocity (m/s, 0: the world's default): how fast the simulated legs can move.
+  explicit Rig(GroundTruthFeatureOptions features = {}, double drive_max_velocity = 0) {
     sim::HexapodWorldConfig c;
     c.network = "servo-" + TestName();
+    if (drive_max_velocity > 0) c.max_velocity = drive_max_velocity;
     world_ = std::make_unique<sim::HexapodWorld>(c);
     hal::canopen::CanopenMasterOptions o;
     o.clock = &world_->clock();
@@ -116,7 +119,7 @@ TEST(ServoLoopTest, ConvergesToTheTargetPoseThroughTheCanopenDrivesInVelocityMod
   ServoLoopOptions o;
   o.timeout_s = 6.0;
   const ServoLoopReport report = rig.Run(o);
-  ASSERT_EQ(report.outcome, ServoLoopOutcome::kConverged) << report.message;
+  ASSERT_EQ(report.outcome, LoopOutcome::kCompleted) << report.message;
   EXPECT_LE(report.final_error_norm, 1e-4);
   EXPECT_GT(report.time_to_threshold_s, 0.5);    // it had a long way to go
   EXPECT_GT(report.velocity_scaled_cycles, 0u);  // the start was velocity-limited
@@ -164,10 +167,53 @@ TEST(ServoLoopTest, ConvergesInPositionModeByIntegratingTheRates) {
   o.command_mode = DriveCommandMode::kPosition;
   o.timeout_s = 5.0;
   const ServoLoopReport report = rig.Run(o);
-  ASSERT_EQ(report.outcome, ServoLoopOutcome::kConverged) << report.message;
+  ASSERT_EQ(report.outcome, LoopOutcome::kCompleted) << report.message;
   const double dp = (rig.world().plant().X_BP.translation() - target.translation()).norm();
   std::printf("CSP: converged in %.3f s, pose error %.2e m\n", report.duration_s, dp);
   EXPECT_LT(dp, 5e-5);
+}
+
+// Legs that cannot follow (the drives' own velocity limit, 1 cm/s, below the loop's 5 cm/s): in
+// CSP the set-points integrating the law's rates would run away from the legs (windup); held
+// within max_command_lead of the readings, the loop stays a rate command on where the legs are.
+TEST(ServoLoopTest, InPositionModeTheSetPointsNeverRunAwayFromLegsThatCannotFollow) {
+  double worst_lead[2] = {0, 0};
+  uint64_t limited[2] = {0, 0};
+  const double lead[2] = {0.002, 1.0};  // bounded; in effect unbounded
+  for (int k = 0; k < 2; ++k) {
+    Rig rig({}, 0.01);
+    Eigen::Isometry3d target = rig.world().config().X_BP_home;
+    target.translation() += Eigen::Vector3d(-0.01, 0.01, 0.015);
+    rig.SetTarget(target);
+    ServoLoopOptions o;
+    o.command_mode = DriveCommandMode::kPosition;
+    o.max_command_lead = lead[k];
+    o.timeout_s = 10.0;
+    const ServoLoopReport report = rig.Run(o);
+    for (const ServoLoopSample& s : report.samples) {
+      worst_lead[k] = std::max(worst_lead[k], (s.q_command - s.q).cwiseAbs().maxCoeff());
+    }
+    limited[k] = report.lead_limited_cycles;
+    if (k == 1) {
+      // Without the bound the set-points run away until the drive's following-error window
+      // (the simulator's CiA 402 0x6065) trips: a fault, 0x8611. This is what the bound prevents.
+      EXPECT_EQ(report.outcome, LoopOutcome::kDriveFault) << report.message;
+      EXPECT_THAT(report.message, HasSubstr("0x8611"));
+    }
+    std::printf(
+        "CSP, legs at 1 cm/s, max_command_lead %.3f m: %s in %.2f s, largest lead %.2f mm, "
+        "%llu lead-limited cycles\n",
+        lead[k], ServoOutcomeName(report.outcome), report.duration_s, 1e3 * worst_lead[k],
+        static_cast<unsigned long long>(limited[k]));
+    if (k == 0) {
+      ASSERT_EQ(report.outcome, LoopOutcome::kCompleted) << report.message;
+      EXPECT_LT((rig.world().plant().X_BP.translation() - target.translation()).norm(), 5e-5);
+    }
+  }
+  EXPECT_GT(limited[0], 0u);
+  EXPECT_LE(worst_lead[0], lead[0] + 1e-12);
+  EXPECT_EQ(limited[1], 0u);
+  EXPECT_GT(worst_lead[1], 2 * lead[0]);
 }
 
 TEST(ServoLoopTest, AHiddenLegOrAStaleCameraHoldsThePlatformAndTheServoResumesAfterwards) {
@@ -188,7 +234,7 @@ TEST(ServoLoopTest, AHiddenLegOrAStaleCameraHoldsThePlatformAndTheServoResumesAf
     if (std::abs(s.time_s - 1.28) < 1e-9 + 0.002) pose_stale_end = rig.world().plant().X_BP;
   };
   const ServoLoopReport report = rig.Run(o, observer);
-  ASSERT_EQ(report.outcome, ServoLoopOutcome::kConverged) << report.message;
+  ASSERT_EQ(report.outcome, LoopOutcome::kCompleted) << report.message;
   EXPECT_TRUE(report.legs_lost[2]);
   EXPECT_FALSE(report.legs_lost[0]);
   // 0.4 s of hidden leg at 4 ms: ~100 cycles (frames every 20 ms decide the state).
@@ -222,7 +268,7 @@ TEST(ServoLoopTest, ALegAboutToLeaveItsStrokeStopsTheLoopBeforeTheLimit) {
   ServoLoopOptions o;
   o.timeout_s = 3.0;
   const ServoLoopReport report = rig.Run(o, {}, &model);
-  ASSERT_EQ(report.outcome, ServoLoopOutcome::kStrokeLimit) << report.message;
+  ASSERT_EQ(report.outcome, LoopOutcome::kLimit) << report.message;
   ASSERT_GE(report.stroke_leg, 0);
   EXPECT_THAT(report.message,
               HasSubstr("leg " + std::to_string(report.stroke_leg) + " would leave its stroke"));
@@ -252,7 +298,7 @@ TEST(ServoLoopTest, ADriveFaultStopsAllSixAndTheReportNamesTheDrive) {
       raised = true;
     }
   });
-  ASSERT_EQ(report.outcome, ServoLoopOutcome::kDriveFault) << report.message;
+  ASSERT_EQ(report.outcome, LoopOutcome::kDriveFault) << report.message;
   EXPECT_EQ(report.faulted_drive, 3);
   EXPECT_THAT(report.message, HasSubstr("leg 3 drive leg3"));
   EXPECT_THAT(report.message, HasSubstr("device fault, error code 0x2310"));
@@ -280,10 +326,11 @@ TEST(ServoLoopTest, AHeartbeatLossStopsAllSixAndTheReportNamesTheDrive) {
       stopped = true;
     }
   });
-  ASSERT_EQ(report.outcome, ServoLoopOutcome::kDriveFault) << report.message;
+  ASSERT_EQ(report.outcome, LoopOutcome::kDriveFault) << report.message;
   EXPECT_EQ(report.faulted_drive, 1);
   EXPECT_THAT(report.message, HasSubstr("leg 1 drive leg1"));
-  EXPECT_THAT(report.message, HasSubstr("link lost (heartbeat)"));
+  EXPECT_THAT(report.message, HasSubstr("link lost"));
+  EXPECT_THAT(report.message, HasSubstr("heartbeat lost"));  // the drive's own cause
   // Consumer time 3 x 20 ms: noticed within ~60–90 ms.
   EXPECT_LT(report.duration_s, 0.45);
   for (hal::MotorDrive* d : rig.master().drives()) {
@@ -308,7 +355,7 @@ TEST(ServoLoopTest, ALateAnswerIsToleratedButADriveThatStaysLateStopsAllSix) {
         dropped = true;
       }
     });
-    EXPECT_EQ(report.outcome, ServoLoopOutcome::kConverged) << report.message;
+    EXPECT_EQ(report.outcome, LoopOutcome::kCompleted) << report.message;
     EXPECT_GE(report.cycle_timeouts, 1u);
   }
   {
@@ -324,7 +371,7 @@ TEST(ServoLoopTest, ALateAnswerIsToleratedButADriveThatStaysLateStopsAllSix) {
         delayed = true;
       }
     });
-    ASSERT_EQ(report.outcome, ServoLoopOutcome::kDriveFault) << report.message;
+    ASSERT_EQ(report.outcome, LoopOutcome::kDriveFault) << report.message;
     EXPECT_THAT(report.message, HasSubstr("4 cycles in a row without every drive's answer"));
     // Silent from 0.3 s: the fourth late cycle in a row is 4 cycles of 4 ms later.
     double fault_time = 0;
