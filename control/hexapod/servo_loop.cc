@@ -143,6 +143,95 @@ ServoLoop::ServoLoop(hal::DriveBus* bus, common::Clock* clock, LegFeatureSource*
   supervision.axis_name = "leg";
   supervision.first_axis_number = 0;
   supervisor_ = std::make_unique<DriveSupervisor>(bus_, clock_, kHexapodLegs, supervision);
+  step_law_ = std::make_unique<LegDirectionLaw>(source_, law_, options_);
+}
+
+LegDirectionLaw::LegDirectionLaw(LegFeatureSource* source, LegServo* law,
+                                 const ServoLoopOptions& options)
+    : source_(source), law_(law), options_(options) {}
+
+void LegDirectionLaw::Start(common::Duration now) {
+  law_->Reset();
+  out_ = LegLawOutput();
+  out_.error_norm = std::numeric_limits<double>::quiet_NaN();
+  q_dot_.setZero();
+  have_frame_ = false;
+  last_frame_time_ = now;
+  converged_since_ = -1;
+  filtered_displacement_.setZero();
+  have_displacement_ = false;
+  last_displacement_time_ = now;
+  frames_ = law_steps_ = 0;
+  legs_lost_ = {};
+  time_to_threshold_s_ = -1;
+}
+
+const LegLawOutput& LegDirectionLaw::Step(common::Duration now, double t, const Vector6d& q) {
+  out_.new_frame = source_->Poll(now, &frame_);
+  if (out_.new_frame) {
+    ++frames_;
+    have_frame_ = true;
+    last_frame_time_ = now;
+    out_.u_C = frame_.u_C;
+    out_.visible = frame_.visible;
+    int visible = 0;
+    for (int j = 0; j < kHexapodLegs; ++j) {
+      visible += frame_.visible[j] ? 1 : 0;
+      if (!frame_.visible[j]) legs_lost_[j] = true;
+    }
+    const LegServoResult r = law_->Compute(frame_.u_C, frame_.visible, q);
+    ++law_steps_;
+    out_.error_norm = r.error_norm;
+    if (visible < options_.min_visible_legs) {
+      out_.detail = ServoLoopState::kHoldLegLost;
+      q_dot_.setZero();
+    } else if (!r.ok()) {
+      out_.detail = ServoLoopState::kHoldLaw;
+      q_dot_.setZero();
+    } else {
+      out_.detail = ServoLoopState::kRunning;
+      q_dot_ = r.q_dot;
+    }
+    // The remaining displacement of one frame carries the features' noise: it is judged after a
+    // first-order low-pass over the frames (time constant convergence_filter_s).
+    if (r.ok()) {
+      const double dt = have_displacement_ ? common::ToSeconds(now - last_displacement_time_) : 0.0;
+      const double a = have_displacement_ && options_.convergence_filter_s > 0
+                           ? 1.0 - std::exp(-dt / options_.convergence_filter_s)
+                           : 1.0;
+      filtered_displacement_ += a * (r.remaining_displacement - filtered_displacement_);
+      have_displacement_ = true;
+      last_displacement_time_ = now;
+    }
+    out_.remaining_translation = filtered_displacement_.head<3>().norm();
+    out_.remaining_rotation = filtered_displacement_.tail<3>().norm();
+    const bool error_small = r.error_norm <= options_.convergence_threshold;
+    const bool displacement_small =
+        r.ok() && options_.convergence_translation > 0 && options_.convergence_rotation > 0 &&
+        out_.remaining_translation <= options_.convergence_translation &&
+        out_.remaining_rotation <= options_.convergence_rotation;
+    if (visible == kHexapodLegs && (error_small || displacement_small)) {
+      if (time_to_threshold_s_ < 0) time_to_threshold_s_ = t;
+      if (converged_since_ < 0) converged_since_ = t;
+      out_.converged_by_error = error_small;
+    } else {
+      converged_since_ = -1;
+    }
+  } else if (!have_frame_) {
+    out_.detail = ServoLoopState::kWaitFirstFrame;
+  }
+  if (have_frame_ && common::ToSeconds(now - last_frame_time_) > options_.stale_camera_timeout_s) {
+    out_.detail = ServoLoopState::kHoldStaleCamera;
+    q_dot_.setZero();
+    converged_since_ = -1;
+  }
+  out_.state = out_.detail == ServoLoopState::kRunning ? LawState::kRunning : LawState::kHold;
+  out_.q_dot = out_.state == LawState::kRunning ? q_dot_ : Vector6d::Zero();
+  // Converged: this cycle's rates are still commanded; the loop then stops.
+  if (converged_since_ >= 0 && t - converged_since_ >= options_.convergence_dwell_s) {
+    out_.state = LawState::kDone;
+  }
+  return out_;
 }
 
 bool ServoLoop::SetRates(const Vector6d& q_dot, const Vector6d& s, Vector6d* s_target) {
@@ -188,7 +277,6 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
   const size_t capacity = static_cast<size_t>(options_.timeout_s / period_s) + 16;
   report.samples.reserve(capacity);
   CycleTimingRecorder timing(capacity);
-  law_->Reset();
 
   const hal::DriveMode mode = options_.command_mode == DriveCommandMode::kVelocity
                                   ? hal::DriveMode::kCyclicSynchronousVelocity
@@ -203,15 +291,7 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
 
   const common::Duration start = clock_->Now();
   DeadlineGrid grid(clock_, period, start);
-  common::Duration last_frame_time = start;
-  bool have_frame = false;
-  double converged_since = -1;
-  bool converged_by_error = true;
-  Vector6d filtered_displacement = Vector6d::Zero();
-  bool have_displacement = false;
-  common::Duration last_displacement_time = start;
-  LegFeatureFrame frame;
-  Vector6d q_dot_law = Vector6d::Zero();  // held between frames
+  step_law_->Start(start);
   ServoLoopSample sample;
   sample.error_norm = std::numeric_limits<double>::quiet_NaN();
   const double q_min = model_.leg_length_min + options_.stroke_margin;
@@ -246,66 +326,16 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
     supervisor_->Positions(s.data());
     const Vector6d q = robots::LegLengthsFromJointPositions(model_, s);
 
-    // 2. A camera frame: run the law.
-    sample.new_frame = source_->Poll(now, &frame);
-    if (sample.new_frame) {
-      ++report.frames;
-      have_frame = true;
-      last_frame_time = now;
-      sample.u_C = frame.u_C;
-      sample.visible = frame.visible;
-      int visible = 0;
-      for (int j = 0; j < kHexapodLegs; ++j) {
-        visible += frame.visible[j] ? 1 : 0;
-        if (!frame.visible[j]) report.legs_lost[j] = true;
-      }
-      const LegServoResult r = law_->Compute(frame.u_C, frame.visible, q);
-      ++report.law_steps;
-      sample.error_norm = r.error_norm;
-      if (visible < options_.min_visible_legs) {
-        sample.state = ServoLoopState::kHoldLegLost;
-        q_dot_law.setZero();
-      } else if (!r.ok()) {
-        sample.state = ServoLoopState::kHoldLaw;
-        q_dot_law.setZero();
-      } else {
-        sample.state = ServoLoopState::kRunning;
-        q_dot_law = r.q_dot;
-      }
-      // The remaining displacement of one frame carries the features' noise: it is judged
-      // after a first-order low-pass over the frames (time constant convergence_filter_s).
-      if (r.ok()) {
-        const double dt = have_displacement ? common::ToSeconds(now - last_displacement_time) : 0.0;
-        const double a = have_displacement && options_.convergence_filter_s > 0
-                             ? 1.0 - std::exp(-dt / options_.convergence_filter_s)
-                             : 1.0;
-        filtered_displacement += a * (r.remaining_displacement - filtered_displacement);
-        have_displacement = true;
-        last_displacement_time = now;
-      }
-      sample.remaining_translation = filtered_displacement.head<3>().norm();
-      sample.remaining_rotation = filtered_displacement.tail<3>().norm();
-      const bool error_small = r.error_norm <= options_.convergence_threshold;
-      const bool displacement_small =
-          r.ok() && options_.convergence_translation > 0 && options_.convergence_rotation > 0 &&
-          sample.remaining_translation <= options_.convergence_translation &&
-          sample.remaining_rotation <= options_.convergence_rotation;
-      if (visible == kHexapodLegs && (error_small || displacement_small)) {
-        if (report.time_to_threshold_s < 0) report.time_to_threshold_s = t;
-        if (converged_since < 0) converged_since = t;
-        converged_by_error = error_small;
-      } else {
-        converged_since = -1;
-      }
-    } else if (!have_frame) {
-      sample.state = ServoLoopState::kWaitFirstFrame;
-    }
-    if (have_frame && common::ToSeconds(now - last_frame_time) > options_.stale_camera_timeout_s) {
-      sample.state = ServoLoopState::kHoldStaleCamera;
-      q_dot_law.setZero();
-      converged_since = -1;
-    }
-    switch (sample.state) {
+    // 2. The law: a camera frame's answer, or the last one held.
+    const LegLawOutput& law = step_law_->Step(now, t, q);
+    sample.new_frame = law.new_frame;
+    sample.state = law.detail;
+    sample.error_norm = law.error_norm;
+    sample.remaining_translation = law.remaining_translation;
+    sample.remaining_rotation = law.remaining_rotation;
+    sample.u_C = law.u_C;
+    sample.visible = law.visible;
+    switch (law.detail) {
       case ServoLoopState::kHoldLegLost:
         ++report.hold_cycles_leg_lost;
         break;
@@ -320,7 +350,7 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
     }
 
     // 3. Safety: velocity limit (uniform scaling), then strokes.
-    Vector6d q_dot = q_dot_law;
+    Vector6d q_dot = law.q_dot;
     const double fastest = q_dot.cwiseAbs().maxCoeff();
     if (fastest > options_.max_leg_velocity) {
       q_dot *= options_.max_leg_velocity / fastest;
@@ -361,10 +391,10 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
       spdlog::warn("servo loop: {}", report.message);
       break;
     }
-    if (converged_since >= 0 && t - converged_since >= options_.convergence_dwell_s) {
+    if (law.state == LawState::kDone) {
       report.outcome = ServoLoopOutcome::kCompleted;
       std::ostringstream out;
-      if (converged_by_error) {
+      if (law.converged_by_error) {
         out << "converged: |e| <= " << options_.convergence_threshold;
       } else {
         out << "converged: remaining displacement <= " << 1e3 * options_.convergence_translation
@@ -373,7 +403,7 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
       }
       out << " for " << options_.convergence_dwell_s << " s";
       report.message = out.str();
-      report.converged_by_error = converged_by_error;
+      report.converged_by_error = law.converged_by_error;
       break;
     }
     if (t >= options_.timeout_s) {
@@ -387,6 +417,10 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
   if (report.outcome != ServoLoopOutcome::kDriveFault) StopAndSettle(&s_target);
   report.duration_s = common::ToSeconds(clock_->Now() - start);
   report.final_error_norm = sample.error_norm;
+  report.frames = step_law_->frames();
+  report.law_steps = step_law_->law_steps();
+  report.legs_lost = step_law_->legs_lost();
+  report.time_to_threshold_s = step_law_->time_to_threshold_s();
   Vector6d s;
   supervisor_->Positions(s.data());
   report.final_q = robots::LegLengthsFromJointPositions(model_, s);

@@ -200,6 +200,58 @@ struct ServoLoopReport {
   std::vector<ServoLoopSample> samples;  // every cycle
 };
 
+// The leg-direction servo as a law of the loop skeleton (control/common/loop.h): each cycle
+// Step() polls the feature source; on a camera frame it runs the LegServo law and judges the
+// frame (legs visible, the law's answer, convergence), between frames it holds the last answer.
+// It returns a LawState per cycle like the DIAMOND's laws: kRunning with the leg rates, kHold
+// (waiting for the first frame, legs lost, the law refusing, a stale camera: zero rates), kDone
+// when the convergence test has held for convergence_dwell_s. The loop applies the safety layer.
+// The options are the ServoLoopOptions' (min_visible_legs, stale_camera_timeout_s and the
+// convergence fields).
+struct LegLawOutput {
+  LawState state = LawState::kHold;
+  Vector6d q_dot = Vector6d::Zero();                        // m/s, zero unless kRunning
+  ServoLoopState detail = ServoLoopState::kWaitFirstFrame;  // which running or hold state
+  bool new_frame = false;
+  double error_norm = 0;  // ‖e‖ of the last frame (NaN before the first)
+  double remaining_translation = 0, remaining_rotation = 0;  // low-passed (ServoLoopSample)
+  LegDirections u_C{};                                       // of the last frame
+  LegMask visible{};
+  bool converged_by_error = true;  // kDone by ‖e‖, else by the remaining displacement
+};
+
+class LegDirectionLaw {
+ public:
+  // source and law must outlive this; options as validated by ServoLoopOptions::Validate().
+  LegDirectionLaw(LegFeatureSource* source, LegServo* law, const ServoLoopOptions& options);
+  // A new run starting at `now`: resets the law and the convergence test.
+  void Start(common::Duration now);
+  // One cycle at `now` (t s into the run) with the leg lengths q (m).
+  const LegLawOutput& Step(common::Duration now, double t, const Vector6d& q);
+
+  uint64_t frames() const { return frames_; }
+  uint64_t law_steps() const { return law_steps_; }
+  const LegMask& legs_lost() const { return legs_lost_; }              // hidden at least once
+  double time_to_threshold_s() const { return time_to_threshold_s_; }  // -1: never met
+
+ private:
+  LegFeatureSource* source_;
+  LegServo* law_;
+  ServoLoopOptions options_;
+  LegLawOutput out_;
+  LegFeatureFrame frame_;
+  Vector6d q_dot_ = Vector6d::Zero();  // the last frame's rates, held between frames
+  bool have_frame_ = false;
+  common::Duration last_frame_time_{0};
+  double converged_since_ = -1;
+  Vector6d filtered_displacement_ = Vector6d::Zero();
+  bool have_displacement_ = false;
+  common::Duration last_displacement_time_{0};
+  uint64_t frames_ = 0, law_steps_ = 0;
+  LegMask legs_lost_{};
+  double time_to_threshold_s_ = -1;
+};
+
 class ServoLoop {
  public:
   // bus: six drives, leg j = bus->drives()[j], configured and enabled by the caller. clock: the
@@ -226,6 +278,7 @@ class ServoLoop {
   LegServo* law_;
   ServoLoopOptions options_;
   std::vector<hal::MotorDrive*> drives_;
+  std::unique_ptr<LegDirectionLaw> step_law_;
   std::unique_ptr<DriveSupervisor> supervisor_;
 };
 

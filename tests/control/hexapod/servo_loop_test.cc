@@ -383,6 +383,68 @@ TEST(ServoLoopTest, ALateAnswerIsToleratedButADriveThatStaysLateStopsAllSix) {
   }
 }
 
+// The law alone, no drives: ground-truth features of a platform that stays where it is.
+TEST(LegDirectionLawTest, HoldsUntilAFrameRunsOnFramesHoldsOnLossAndIsDoneAfterTheDwell) {
+  const robots::HexapodModel model = robots::HexapodModel::Default();
+  const Eigen::Isometry3d X_CB = CameraPose_CB();
+  Eigen::Isometry3d X_BP = robots::HexapodModel::NominalPose();
+  GroundTruthLegFeatureSource source(model, X_CB, [&] { return X_BP; });  // 50 frames/s
+  LegServo servo(AttachmentPointsInCamera(model, X_CB));
+  Eigen::Isometry3d target = X_BP;
+  target.translation() += Eigen::Vector3d(0.0, 0.0, 0.01);
+  LegDirections u_star;
+  ASSERT_TRUE(DesiredLegDirections(model, target, X_CB, &u_star).ok());
+  servo.SetDesired(u_star);
+  ServoLoopOptions o;
+  o.convergence_dwell_s = 0.1;
+  LegDirectionLaw law(&source, &servo, o);
+  robots::HexapodData ik;
+  ASSERT_TRUE(robots::InverseKinematics(model, X_BP, &ik).ok());
+  const common::Duration start{0};
+  law.Start(start);
+  const auto at = [&](double t) { return start + common::FromSeconds(t); };
+
+  // The first poll brings the first frame: 1 cm away, running, upwards.
+  LegLawOutput out = law.Step(at(0.0), 0.0, ik.q);
+  EXPECT_TRUE(out.new_frame);
+  EXPECT_EQ(out.state, LawState::kRunning);
+  EXPECT_GT(out.error_norm, o.convergence_threshold);
+  EXPECT_GT(out.q_dot.norm(), 0.0);
+  // Between frames the rates are held.
+  const Vector6d held = out.q_dot;
+  out = law.Step(at(0.004), 0.004, ik.q);
+  EXPECT_FALSE(out.new_frame);
+  EXPECT_EQ(out.state, LawState::kRunning);
+  EXPECT_EQ(out.q_dot, held);
+  // A leg hidden: the next frame holds, zero rates.
+  source.SetLegHidden(4, true);
+  out = law.Step(at(0.02), 0.02, ik.q);
+  EXPECT_EQ(out.state, LawState::kHold);
+  EXPECT_EQ(out.detail, ServoLoopState::kHoldLegLost);
+  EXPECT_EQ(out.q_dot, Vector6d::Zero());
+  EXPECT_TRUE(law.legs_lost()[4]);
+  source.SetLegHidden(4, false);
+  // The camera silent for longer than stale_camera_timeout_s: hold.
+  source.SetPaused(true);
+  out = law.Step(at(0.04 + 1.5 * o.stale_camera_timeout_s), 0.04 + 1.5 * o.stale_camera_timeout_s,
+                 ik.q);
+  EXPECT_EQ(out.detail, ServoLoopState::kHoldStaleCamera);
+  EXPECT_EQ(out.state, LawState::kHold);
+  source.SetPaused(false);
+  // The platform at the target: the test holds, and after the dwell the law is done.
+  X_BP = target;
+  ASSERT_TRUE(robots::InverseKinematics(model, X_BP, &ik).ok());
+  double done_at = -1;
+  for (double t = 0.5; t < 1.5 && done_at < 0; t += 0.004) {
+    out = law.Step(at(t), t, ik.q);
+    if (out.state == LawState::kDone) done_at = t;
+  }
+  ASSERT_GE(done_at, 0.0);
+  EXPECT_TRUE(out.converged_by_error);
+  EXPECT_NEAR(done_at - law.time_to_threshold_s(), o.convergence_dwell_s, 0.021);
+  EXPECT_GT(law.frames(), 3u);
+}
+
 TEST(ServoLoopTest, BadOptionsAreRefusedNamingEveryField) {
   ServoLoopOptions o;
   o.cycle_period_s = 0;
