@@ -24,7 +24,7 @@ void SteadyClock::SleepUntil(Duration deadline) {
   if (deadline <= Duration::zero()) return;
   timespec t{};
   t.tv_sec = static_cast<time_t>(deadline.count() / 1000000000);
-  t.tv_nsec = static_cast<long>(deadline.count() % 1000000000);
+  t.tv_nsec = static_cast<decltype(t.tv_nsec)>(deadline.count() % 1000000000);
   while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &t, nullptr) == EINTR) {
   }
 }

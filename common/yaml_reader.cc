@@ -125,11 +125,12 @@ double YamlReader::Number(const std::string& key, double fallback) {
   return n ? impl_->ToNumber(n, key) : fallback;
 }
 
+// NOLINTNEXTLINE(google-runtime-int): the type of yaml-cpp's integers (yaml_reader.h)
 long long YamlReader::Integer(const std::string& key, long long fallback) {
   const YAML::Node n = impl_->Find(key);
   if (!n) return fallback;
   try {
-    if (n.IsScalar()) return n.as<long long>();
+    if (n.IsScalar()) return n.as<long long>();  // NOLINT(google-runtime-int)
   } catch (const YAML::Exception&) {
   }
   impl_->problems.Add(key + ": expected an integer, got '" +
@@ -150,7 +151,7 @@ std::string YamlReader::Text(const std::string& key, const std::string& fallback
 std::vector<double> YamlReader::Numbers(const std::string& key, size_t n,
                                         std::vector<double> fallback, bool scalar_ok) {
   const YAML::Node node = impl_->Find(key);
-  return node ? impl_->ToNumbers(node, key, n, scalar_ok) : fallback;
+  return node ? impl_->ToNumbers(node, key, n, scalar_ok) : std::move(fallback);
 }
 
 Eigen::Isometry3d YamlReader::Pose(const std::string& key, const Eigen::Isometry3d& fallback) {

@@ -25,6 +25,7 @@ class YamlReader {
   bool Has(const std::string& key) const;
   // A finite number; a problem ("expected a finite number, got 'x'") and NaN otherwise.
   double Number(const std::string& key, double fallback);
+  // NOLINTNEXTLINE(google-runtime-int): the type of yaml-cpp's and std::stoll's integers
   long long Integer(const std::string& key, long long fallback);
   std::string Text(const std::string& key, const std::string& fallback);
   // Exactly n numbers (a scalar is repeated n times when scalar_ok).

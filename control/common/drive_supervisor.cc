@@ -39,8 +39,9 @@ DriveSupervisor::DriveSupervisor(hal::DriveBus* bus, common::Clock* clock, size_
           std::to_string(expected_drives));
     }
     for (size_t i = 0; i < drives_.size(); ++i) {
-      if (drives_[i] == nullptr)
+      if (drives_[i] == nullptr) {
         add("bus " + bus->name() + ": drive " + std::to_string(i) + " is null");
+      }
     }
   }
   if (!message.empty()) throw std::invalid_argument("DriveSupervisor: " + message);
