@@ -79,7 +79,12 @@ class DriveSupervisor {
   // of the first such drive, or -1.
   std::string DriveFaults(int* first = nullptr) const;
 
+  // Late cycles since construction or the last ResetCounts() (a loop calls it when a run starts).
   uint64_t cycle_timeouts() const { return cycle_timeouts_; }
+  void ResetCounts() {
+    cycle_timeouts_ = 0;
+    consecutive_timeouts_ = 0;
+  }
   int consecutive_timeouts() const { return consecutive_timeouts_; }
   bool AllAtRest() const;
   // Drive positions / velocities (drive units) into out[0..size()).

@@ -171,6 +171,7 @@ DiamondLoopReport DiamondControlLoop::Run(
   if (options_.keep_samples) report.samples.reserve(capacity);
   CycleTimingRecorder timing(capacity);
 
+  supervisor_->ResetCounts();
   Eigen::Vector2d q_command;
   supervisor_->Positions(q_command.data());
   report.message =

@@ -281,6 +281,7 @@ ServoLoopReport ServoLoop::Run(const std::function<void(const ServoLoopSample&)>
   const hal::DriveMode mode = options_.command_mode == DriveCommandMode::kVelocity
                                   ? hal::DriveMode::kCyclicSynchronousVelocity
                                   : hal::DriveMode::kCyclicSynchronousPosition;
+  supervisor_->ResetCounts();
   Vector6d s_target;
   supervisor_->Positions(s_target.data());
   report.message = supervisor_->SelectMode(mode, &report.faulted_drive);

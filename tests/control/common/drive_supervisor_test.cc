@@ -180,6 +180,10 @@ TEST(DriveSupervisorTest, LateCyclesAreToleratedUpToTheLimitThenAFaultThatSaysSo
   const SupervisedCycle back = s.Cycle();
   EXPECT_FALSE(back.late);
   EXPECT_EQ(s.consecutive_timeouts(), 0);
+  EXPECT_EQ(s.cycle_timeouts(), 2u);
+  // A new run starts counting from zero.
+  s.ResetCounts();
+  EXPECT_EQ(s.cycle_timeouts(), 0u);
 }
 
 TEST(DriveSupervisorTest, ALostLinkNamesTheDriveAndCarriesTheDrivesOwnCause) {
